@@ -1,0 +1,3 @@
+from stereogeo_cli.cli import main
+
+main()

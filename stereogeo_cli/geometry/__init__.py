@@ -1,0 +1,50 @@
+"""Geometry: one home for the maths of gravity, cameras, perspective fields, rotations and epipolar geometry."""
+
+from stereogeo_cli.geometry.camera import (
+    ResizeCrop,
+    apply_resize_crop,
+    focal_from_vfov,
+    intrinsic_matrix,
+    principal_point,
+    resize_crop_for_network,
+    vfov_from_focal,
+)
+from stereogeo_cli.geometry.epipolar import essential_matrix, fundamental_matrix, symmetric_epipolar_distance
+from stereogeo_cli.geometry.fields import (
+    fields_and_jacobians,
+    latitude_at,
+    latitude_field,
+    pixel_grid,
+    up_at,
+    up_field,
+)
+from stereogeo_cli.geometry.gravity import (
+    couple_rotation_to_gravity,
+    gravity_angle,
+    gravity_coupling_error,
+    gravity_from_roll_pitch,
+    retract_gravity,
+    roll_pitch_from_gravity,
+    tangent_basis,
+)
+from stereogeo_cli.geometry.rotation import (
+    axis_angle_from_rotation,
+    closest_rotation,
+    quaternion_from_rotation,
+    quaternion_to_rotation,
+    rotation_angle,
+    rotation_between_vectors,
+    rotation_error,
+    rotation_from_axis_angle,
+    skew,
+)
+
+__all__ = [
+    "ResizeCrop", "apply_resize_crop", "focal_from_vfov", "intrinsic_matrix", "principal_point",
+    "resize_crop_for_network", "vfov_from_focal", "essential_matrix", "fundamental_matrix",
+    "symmetric_epipolar_distance", "fields_and_jacobians", "latitude_at", "latitude_field", "pixel_grid",
+    "up_at", "up_field", "couple_rotation_to_gravity", "gravity_angle", "gravity_coupling_error",
+    "gravity_from_roll_pitch", "retract_gravity", "roll_pitch_from_gravity", "tangent_basis",
+    "axis_angle_from_rotation", "closest_rotation", "quaternion_from_rotation", "quaternion_to_rotation",
+    "rotation_angle", "rotation_between_vectors", "rotation_error", "rotation_from_axis_angle", "skew",
+]  # fmt: skip

@@ -1,0 +1,90 @@
+"""Pinhole camera with fx = fy = f and the principal point at (w/2, h/2), and the network's resize/crop.
+
+Pixel (0, 0) is the centre of the top-left pixel (OpenCV). Focal lengths are in pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def focal_from_vfov(vfov: np.ndarray | float, height: float) -> np.ndarray:
+    """Focal length in pixels from the vertical field of view in radians."""
+    return np.asarray(height / (2.0 * np.tan(np.asarray(vfov, dtype=float) / 2.0)))
+
+
+def vfov_from_focal(focal: np.ndarray | float, height: float) -> np.ndarray:
+    """Vertical field of view in radians, ``2·atan(h / (2·f))``."""
+    return np.asarray(2.0 * np.arctan(height / (2.0 * np.asarray(focal, dtype=float))))
+
+
+def principal_point(width: float, height: float) -> tuple[float, float]:
+    """The principal point convention of the project: (w/2, h/2)."""
+    return width / 2.0, height / 2.0
+
+
+def intrinsic_matrix(focal: float, width: float, height: float) -> np.ndarray:
+    """K [3 x 3] with fx = fy = focal and the principal point at (w/2, h/2)."""
+    cx, cy = principal_point(width, height)
+    return np.array([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class ResizeCrop:
+    """An image resized by ``scale`` then cropped to ``out_size`` starting at ``crop`` (resized pixels).
+
+    Maps pixel centres exactly: ``x_out = (x_in + 0.5)·scale - 0.5 - crop_x``.
+    """
+
+    in_size: tuple[int, int]  # (width, height) of the original image
+    scale: float
+    resized_size: tuple[int, int]  # (width, height) after resizing, before cropping
+    crop: tuple[int, int]  # (x, y) of the crop's top-left pixel in the resized image
+    out_size: tuple[int, int]  # (width, height) given to the network
+
+    def points_to_output(self, points: np.ndarray) -> np.ndarray:
+        """Original pixel coordinates [... x 2] → network-input pixel coordinates."""
+        return (np.asarray(points, dtype=float) + 0.5) * self.scale - 0.5 - np.asarray(self.crop, dtype=float)
+
+    def points_to_input(self, points: np.ndarray) -> np.ndarray:
+        """Network-input pixel coordinates [... x 2] → original pixel coordinates."""
+        return (np.asarray(points, dtype=float) + 0.5 + np.asarray(self.crop, dtype=float)) / self.scale - 0.5
+
+    def focal_to_input(self, focal: float) -> float:
+        """A focal length fitted on the network input, in original pixels."""
+        return float(focal) / self.scale
+
+    def focal_to_output(self, focal: float) -> float:
+        """A focal length in original pixels, on the network input."""
+        return float(focal) * self.scale
+
+
+def resize_crop_for_network(width: int, height: int, short_side: int = 320, multiple: int = 32) -> ResizeCrop:
+    """Resize so the short side is ``short_side``, then centre-crop both sides to a multiple of ``multiple``.
+
+    The crop is centred to within half a resized pixel, so the principal point (w/2, h/2) of the original
+    stays at the centre of the network input (the gravity direction is unchanged by resizing and cropping).
+    """
+    if width < 1 or height < 1:
+        raise ValueError(f"image size must be positive, got {width}x{height}")
+    scale = short_side / min(width, height)
+    rw, rh = max(1, round(width * scale)), max(1, round(height * scale))
+    ow, oh = max(multiple, rw // multiple * multiple), max(multiple, rh // multiple * multiple)
+    ow, oh = min(ow, rw) if rw >= multiple else ow, min(oh, rh) if rh >= multiple else oh
+    crop = ((rw - ow) // 2, (rh - oh) // 2)
+    return ResizeCrop((width, height), scale, (rw, rh), crop, (ow, oh))
+
+
+def apply_resize_crop(image: np.ndarray, rc: ResizeCrop) -> np.ndarray:
+    """Resize (area filter when shrinking, linear when enlarging) and crop an image [H x W (x C)]."""
+    import cv2
+
+    h, w = image.shape[:2]
+    if (w, h) != rc.in_size:
+        raise ValueError(f"image is {w}x{h}, the resize/crop was planned for {rc.in_size[0]}x{rc.in_size[1]}")
+    interp = cv2.INTER_AREA if rc.scale < 1 else cv2.INTER_LINEAR
+    resized = cv2.resize(image, rc.resized_size, interpolation=interp) if rc.scale != 1 else image
+    x, y = rc.crop
+    return resized[y : y + rc.out_size[1], x : x + rc.out_size[0]]

@@ -1,0 +1,83 @@
+"""Gravity as the world-UP direction in camera coordinates (x right, y down, z forward).
+
+``g = (-sin(roll)·cos(pitch), -cos(roll)·cos(pitch), sin(pitch))``; a level camera has g = (0, -1, 0),
+pitch > 0 looks up. Angles are radians unless a name ends in ``_deg``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def gravity_from_roll_pitch(roll: np.ndarray | float, pitch: np.ndarray | float) -> np.ndarray:
+    """Up vector(s) [... x 3] from roll and pitch in radians."""
+    roll, pitch = np.asarray(roll, dtype=float), np.asarray(pitch, dtype=float)
+    cp = np.cos(pitch)
+    return np.stack([-np.sin(roll) * cp, -np.cos(roll) * cp, np.sin(pitch)], axis=-1)
+
+
+def roll_pitch_from_gravity(gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(roll, pitch) in radians from up vector(s) [... x 3] (normalised first)."""
+    g = np.asarray(gravity, dtype=float)
+    g = g / np.linalg.norm(g, axis=-1, keepdims=True)
+    pitch = np.arcsin(np.clip(g[..., 2], -1.0, 1.0))
+    roll = np.arctan2(-g[..., 0], -g[..., 1])
+    return roll, pitch
+
+
+def tangent_basis(gravity: np.ndarray) -> np.ndarray:
+    """An orthonormal basis [3 x 2] of the plane tangent to the unit sphere at ``gravity`` [3].
+
+    The first column is d g / d pitch and the second is (d g / d roll) / cos(pitch), so the tangent
+    coordinates are (pitch, roll·cos(pitch)) to first order. Away from the poles (|pitch| < 90°) the
+    basis is smooth; at a pole any orthonormal pair is returned.
+    """
+    g = np.asarray(gravity, dtype=float)
+    g = g / np.linalg.norm(g)
+    horizontal = np.array([g[0], g[1], 0.0])
+    norm = np.linalg.norm(horizontal)
+    if norm < 1e-12:  # looking straight up or down
+        return np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
+    # g = (-sin r cos p, -cos r cos p, sin p): d/dp = (sin r sin p, cos r sin p, cos p)
+    h = horizontal / norm  # = (-sin r, -cos r, 0)
+    e_pitch = np.array([-h[0] * g[2], -h[1] * g[2], norm])
+    e_roll = np.array([h[1], -h[0], 0.0])  # (-cos r, sin r, 0) = (d g / d roll) / cos p
+    return np.stack([e_pitch, e_roll], axis=1)
+
+
+def retract_gravity(gravity: np.ndarray, delta: np.ndarray, basis: np.ndarray | None = None) -> np.ndarray:
+    """Move ``gravity`` [3] along the sphere by the tangent step ``delta`` [2] (exponential map)."""
+    B = tangent_basis(gravity) if basis is None else basis
+    step = B @ np.asarray(delta, dtype=float)
+    angle = np.linalg.norm(step)
+    if angle < 1e-15:
+        return np.asarray(gravity, dtype=float).copy()
+    return np.cos(angle) * gravity + np.sin(angle) * step / angle
+
+
+def gravity_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle in radians between direction vectors [... x 3]."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    cross = np.linalg.norm(np.cross(a, b), axis=-1)
+    return np.arctan2(cross, np.sum(a * b, axis=-1))
+
+
+def gravity_coupling_error(R: np.ndarray, gravity_left: np.ndarray, gravity_right: np.ndarray) -> float:
+    """Angle in radians between ``R @ g_left`` and ``g_right``: 0 for a rig consistent with gravity."""
+    return float(gravity_angle(np.asarray(R) @ gravity_left, gravity_right))
+
+
+def couple_rotation_to_gravity(
+    R: np.ndarray, gravity_left: np.ndarray, gravity_right: np.ndarray
+) -> np.ndarray:
+    """The rotation closest to ``R`` (geodesic angle) that maps ``g_left`` exactly onto ``g_right``.
+
+    Every such rotation R' has R·R'ᵀ taking g_right to R·g_left, so its angle from R is at least the
+    coupling error; the minimal rotation Q taking R·g_left onto g_right attains it with R' = Q·R.
+    """
+    from stereogeo_cli.geometry.rotation import rotation_between_vectors
+
+    a = np.asarray(R, dtype=float) @ gravity_left
+    Q = rotation_between_vectors(a, gravity_right)
+    return Q @ R
