@@ -1,4 +1,4 @@
-"""Geometry: one home for the maths of gravity, cameras, perspective fields, rotations and epipolar geometry."""
+"""Geometry: the one home of the maths of gravity, cameras, perspective fields, rotations, epipoles."""
 
 from stereogeo_cli.geometry.camera import (
     ResizeCrop,

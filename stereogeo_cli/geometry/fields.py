@@ -26,14 +26,18 @@ def _normalised(x: np.ndarray, y: np.ndarray, focal: float, cx: float, cy: float
     return (np.asarray(x, dtype=float) - cx) / focal, (np.asarray(y, dtype=float) - cy) / focal
 
 
-def up_at(gravity: np.ndarray, focal: float, x: np.ndarray, y: np.ndarray, cx: float, cy: float) -> np.ndarray:
+def up_at(
+    gravity: np.ndarray, focal: float, x: np.ndarray, y: np.ndarray, cx: float, cy: float
+) -> np.ndarray:
     """Up-vector field [... x 2] at pixel coordinates x, y [...]."""
     u, v = _normalised(x, y, focal, cx, cy)
     a = np.stack([gravity[0] - gravity[2] * u, gravity[1] - gravity[2] * v], axis=-1)
     return a / np.linalg.norm(a, axis=-1, keepdims=True)
 
 
-def latitude_at(gravity: np.ndarray, focal: float, x: np.ndarray, y: np.ndarray, cx: float, cy: float) -> np.ndarray:
+def latitude_at(
+    gravity: np.ndarray, focal: float, x: np.ndarray, y: np.ndarray, cx: float, cy: float
+) -> np.ndarray:
     """Latitude field in radians [...] at pixel coordinates x, y [...]."""
     u, v = _normalised(x, y, focal, cx, cy)
     s = (gravity[0] * u + gravity[1] * v + gravity[2]) / np.sqrt(u * u + v * v + 1.0)
@@ -52,6 +56,18 @@ def latitude_field(gravity: np.ndarray, focal: float, width: int, height: int) -
     return latitude_at(np.asarray(gravity, dtype=float), focal, x, y, *principal_point(width, height))
 
 
+def up_and_sin_latitude(
+    gravity: np.ndarray, focal: float, x: np.ndarray, y: np.ndarray, cx: float, cy: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Up field [N x 2] and sine of the latitude [N] at pixel coordinates x, y [N] (the refiner's model)."""
+    g = np.asarray(gravity, dtype=float)
+    u, v = _normalised(x, y, focal, cx, cy)
+    a = np.stack([g[0] - g[2] * u, g[1] - g[2] * v], axis=-1)
+    up = a / np.sqrt(a[:, 0] ** 2 + a[:, 1] ** 2)[:, None]
+    sin_lat = (g[0] * u + g[1] * v + g[2]) / np.sqrt(u * u + v * v + 1.0)
+    return up, sin_lat
+
+
 def fields_and_jacobians(
     gravity: np.ndarray, focal: float, x: np.ndarray, y: np.ndarray, cx: float, cy: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -66,31 +82,26 @@ def fields_and_jacobians(
     g = np.asarray(gravity, dtype=float)
     B = tangent_basis(g)  # [3 x 2]
     u, v = _normalised(x, y, focal, cx, cy)
-    n = u.shape[0]
 
-    # up = a / |a|, a = (g_x - g_z u, g_y - g_z v)
-    a = np.stack([g[0] - g[2] * u, g[1] - g[2] * v], axis=-1)
-    a_norm = np.linalg.norm(a, axis=-1)
-    up = a / a_norm[:, None]
-    da_dg = np.zeros((n, 2, 3))
-    da_dg[:, 0, 0] = 1.0
-    da_dg[:, 1, 1] = 1.0
-    da_dg[:, 0, 2] = -u
-    da_dg[:, 1, 2] = -v
-    da_dlogf = np.stack([g[2] * u, g[2] * v], axis=-1)  # du/dlogf = -u
-    proj = (np.eye(2)[None] - up[:, :, None] * up[:, None, :]) / a_norm[:, None, None]
-    J_up = np.empty((n, 2, 3))
-    J_up[:, :, :2] = proj @ (da_dg @ B)
-    J_up[:, :, 2] = np.einsum("nij,nj->ni", proj, da_dlogf)
+    # up = a/|a| with a = (g_x - g_z·u, g_y - g_z·v). For a 2-vector, I - up·upᵀ = perp·perpᵀ with
+    # perp = (-up_y, up_x), so d up = perp · (perpᵀ d a) / |a|: a rank-one Jacobian per pixel.
+    a_x, a_y = g[0] - g[2] * u, g[1] - g[2] * v
+    a_norm = np.sqrt(a_x * a_x + a_y * a_y)
+    up = np.stack([a_x, a_y], axis=-1) / a_norm[:, None]
+    perp = np.stack([-up[:, 1], up[:, 0]], axis=-1)
+    perp_uv = perp[:, 0] * u + perp[:, 1] * v
+    k = np.empty((len(u), 3))
+    # perpᵀ d a / d g = (perp_x, perp_y, -perp·(u, v)); d(u, v)/d log f = -(u, v)
+    k[:, :2] = (np.stack([perp[:, 0], perp[:, 1], -perp_uv], axis=-1) @ B) / a_norm[:, None]
+    k[:, 2] = g[2] * perp_uv / a_norm
+    J_up = perp[:, :, None] * k[:, None, :]
 
-    # sin(lat) = g · p/|p|, p = (u, v, 1)
+    # sin(lat) = g · ray, ray = p/|p|, p = (u, v, 1); d ray / d log f = (I - ray·rayᵀ)(-u, -v, 0)/|p|
     p_norm = np.sqrt(u * u + v * v + 1.0)
     ray = np.stack([u, v, np.ones_like(u)], axis=-1) / p_norm[:, None]
     sin_lat = ray @ g
-    J_lat = np.empty((n, 3))
+    J_lat = np.empty((len(u), 3))
     J_lat[:, :2] = ray @ B
-    # d ray / d log f = (I - ray rayᵀ)(-u, -v, 0)/|p|
-    dp = np.stack([-u, -v, np.zeros_like(u)], axis=-1)
-    dray = (dp - ray * np.sum(ray * dp, axis=-1, keepdims=True)) / p_norm[:, None]
-    J_lat[:, 2] = dray @ g
+    ray_uv = ray[:, 0] * u + ray[:, 1] * v  # ray · (u, v, 0)
+    J_lat[:, 2] = (-(g[0] * u + g[1] * v) + sin_lat * ray_uv) / p_norm
     return up, sin_lat, J_up, J_lat

@@ -56,7 +56,9 @@ def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
     k = int(np.argmax([trace, *diag]))
     if k == 0:
         w = 0.5 * np.sqrt(max(1.0 + trace, 0.0))
-        q = np.array([w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w)])
+        q = np.array(
+            [w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w)]
+        )
     else:
         i = k - 1
         j, m = (i + 1) % 3, (i + 2) % 3

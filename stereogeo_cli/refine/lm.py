@@ -1,0 +1,375 @@
+"""Levenberg–Marquardt fit of one camera's focal length and gravity to its perspective fields.
+
+Parameters θ = (gravity on the unit sphere S², log f). Residuals per field sample:
+``r_up = up_pred - up(θ)`` (2-D) and ``r_lat = sin(lat_pred) - sin(lat(θ))``. The cost is the mean over
+samples of ``c_up·ρ(|r_up|²) + c_lat·ρ(r_lat²)`` with confidences c and GeoCalib's scaled Huber ρ on the
+squared residual. Steps that raise the cost are rejected (GeoCalib accepts every step).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stereogeo_cli.geometry.camera import focal_from_vfov, principal_point, vfov_from_focal
+from stereogeo_cli.geometry.fields import fields_and_jacobians, up_and_sin_latitude
+from stereogeo_cli.geometry.gravity import (
+    gravity_from_roll_pitch,
+    retract_gravity,
+    roll_pitch_from_gravity,
+    tangent_basis,
+)
+
+default_conf = {
+    "max_iterations": 30,  # LM steps, accepted or rejected
+    "lambda_init": 0.1,  # initial damping of δ = -(H + λ·diag(H))⁻¹ g
+    "lambda_max": 1e8,  # give up once a step cannot lower the cost even this damped
+    "huber_scale": 0.01,  # residual size where the Huber loss turns from quadratic to linear
+    "relative_tolerance": 1e-7,  # stop when an accepted step lowers the cost by less than this share
+    "max_samples": 3000,  # fields are sub-sampled on a regular grid down to about this many pixels
+    "min_vfov_deg": 5.0,  # log f is clamped so the vFoV stays within these bounds
+    "max_vfov_deg": 150.0,
+    "init": "fields",  # "fields": roll/pitch read off the fields, focal by a 1-D search; "level": DESIGN §4
+    "init_vfov_grid_deg": (15, 25, 35, 45, 55, 65, 80, 95, 110, 130),  # candidates for the focal search
+    "sigma_inflation": 1.0,  # multiplies the 1-sigma figures (network errors are spatially correlated)
+}
+
+
+@dataclass
+class CameraFit:
+    """One camera's refined parameters and their 1-sigma uncertainties (pixels and degrees)."""
+
+    width: int
+    height: int
+    focal_px: float
+    gravity_up: np.ndarray  # [3] unit world-UP in camera coordinates
+    roll_deg: float
+    pitch_deg: float
+    vfov_deg: float
+    sigma: dict[str, float]  # focal_px, vfov_deg, roll_deg, pitch_deg
+    covariance: np.ndarray  # [3 x 3] of θ = (δ_pitch, δ_roll·cos(pitch), log f)
+    cost: float
+    iterations: int
+    converged: bool
+    history: list[float] = field(default_factory=list)  # cost after every accepted step
+
+    def to_dict(self) -> dict:
+        return {
+            "width": self.width,
+            "height": self.height,
+            "focal_px": self.focal_px,
+            "vfov_deg": self.vfov_deg,
+            "roll_deg": self.roll_deg,
+            "pitch_deg": self.pitch_deg,
+            "gravity_up": [float(v) for v in self.gravity_up],
+            "sigma": dict(self.sigma),
+            "cost": self.cost,
+            "iterations": self.iterations,
+            "converged": self.converged,
+        }
+
+
+def huber(s: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Scaled Huber on squared residuals s: (ρ(s), ρ'(s)); ρ = s below scale², 2·scale·√s - scale² above."""
+    a2 = scale * scale
+    small = s <= a2
+    root = np.sqrt(np.maximum(s, a2))
+    rho = np.where(small, s, 2.0 * scale * root - a2)
+    drho = np.where(small, 1.0, scale / root)
+    return rho, drho
+
+
+def _sample_grid(height: int, width: int, max_samples: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of a regular sub-grid with about ``max_samples`` cells, centred."""
+    if not max_samples or height * width <= max_samples:
+        return np.arange(height), np.arange(width)
+    stride = np.sqrt(height * width / max_samples)
+    rows = np.unique(np.round(np.arange(stride / 2 - 0.5, height, stride)).astype(int).clip(0, height - 1))
+    cols = np.unique(np.round(np.arange(stride / 2 - 0.5, width, stride)).astype(int).clip(0, width - 1))
+    return rows, cols
+
+
+class _Problem:
+    """Residuals, cost and normal equations of one camera on N field samples."""
+
+    def __init__(self, x, y, up, sin_lat, c_up, c_lat, cx, cy, scale, focal_prior, gravity_prior):
+        self.x, self.y, self.cx, self.cy, self.scale = x, y, cx, cy, scale
+        self.up, self.sin_lat, self.c_up, self.c_lat = up, sin_lat, c_up, c_lat
+        self.n = float(len(x))
+        self.focal_prior = focal_prior  # (log f0, sigma of log f) or None
+        self.gravity_prior = gravity_prior  # (g0 [3], sigma in radians) or None
+
+    def _prior_cost(self, g: np.ndarray, log_f: float) -> float:
+        cost = 0.0
+        if self.focal_prior is not None:
+            cost += ((log_f - self.focal_prior[0]) / self.focal_prior[1]) ** 2
+        if self.gravity_prior is not None:
+            cost += float(np.sum((g - self.gravity_prior[0]) ** 2)) / self.gravity_prior[1] ** 2
+        return cost / self.n
+
+    def cost(self, g: np.ndarray, log_f: float) -> float:
+        up, sin_lat = up_and_sin_latitude(g, np.exp(log_f), self.x, self.y, self.cx, self.cy)
+        r_up = self.up - up
+        r_lat = self.sin_lat - sin_lat
+        rho_up, _ = huber(np.sum(r_up * r_up, axis=1), self.scale)
+        rho_lat, _ = huber(r_lat * r_lat, self.scale)
+        data = (np.dot(self.c_up, rho_up) + np.dot(self.c_lat, rho_lat)) / self.n
+        return float(data) + self._prior_cost(g, log_f)
+
+    def normal_equations(self, g: np.ndarray, log_f: float):
+        """H [3 x 3], gradient [3] (both ×N/2 of the cost's) and Σ gₙgₙᵀ [3 x 3] over samples n."""
+        up, sin_lat, J_up, J_lat = fields_and_jacobians(g, np.exp(log_f), self.x, self.y, self.cx, self.cy)
+        r_up = self.up - up
+        r_lat = self.sin_lat - sin_lat
+        s_up = np.sum(r_up * r_up, axis=1)
+        _, d_up = huber(s_up, self.scale)
+        _, d_lat = huber(r_lat * r_lat, self.scale)
+        w_up = self.c_up * d_up
+        w_lat = self.c_lat * d_lat
+        # residual r = pred - model, so d r / dθ = -J
+        J_up = J_up.reshape(-1, 3)
+        wJ_up = J_up * np.repeat(w_up, 2)[:, None]
+        wJ_lat = J_lat * w_lat[:, None]
+        H = wJ_up.T @ J_up + wJ_lat.T @ J_lat
+        grad = -(wJ_up.T @ r_up.ravel() + wJ_lat.T @ r_lat)
+        # For the covariance: the exact Hessian of the robust cost ("bread") and Σ gₙgₙᵀ ("meat").
+        # Where the Huber loss is linear it has no curvature along the residual: the bread keeps only
+        # the component of J across the residual there (for the up field) or nothing (for the latitude).
+        inside_up = s_up <= self.scale**2
+        r_hat = r_up / np.sqrt(np.maximum(s_up, 1e-300))[:, None]
+        J3 = J_up.reshape(-1, 2, 3)
+        Jr = np.einsum("nk,nki->ni", r_hat, J3)  # r̂ᵀ J per sample
+        bread = wJ_up.T @ J_up - ((w_up * ~inside_up)[:, None] * Jr).T @ Jr
+        inside_lat = r_lat * r_lat <= self.scale**2
+        bread += (wJ_lat * inside_lat[:, None]).T @ J_lat
+        g_up = (wJ_up * r_up.reshape(-1, 1)).reshape(-1, 2, 3).sum(axis=1)
+        g_lat = wJ_lat * r_lat[:, None]
+        meat = g_up.T @ g_up + g_lat.T @ g_lat
+        if self.focal_prior is not None:
+            inv_var = 1.0 / self.focal_prior[1] ** 2
+            H[2, 2] += inv_var
+            bread[2, 2] += inv_var
+            meat[2, 2] += inv_var  # a prior is one more observation with its own variance
+            grad[2] += (log_f - self.focal_prior[0]) * inv_var
+        if self.gravity_prior is not None:
+            B = tangent_basis(g)
+            inv_var = 1.0 / self.gravity_prior[1] ** 2
+            H[:2, :2] += B.T @ B * inv_var
+            bread[:2, :2] += B.T @ B * inv_var
+            meat[:2, :2] += B.T @ B * inv_var
+            grad[:2] += B.T @ (g - self.gravity_prior[0]) * inv_var
+        return H, grad, bread, meat
+
+
+def _parse_focal_prior(prior, default_sigma_rel=0.0):
+    """A focal prior is a value in pixels (known: held fixed) or (value, sigma) in pixels (soft)."""
+    if prior is None:
+        return None, None
+    if np.ndim(prior) == 0:
+        return float(prior), None
+    value, sigma = prior
+    return float(value), float(sigma)
+
+
+def _parse_gravity_prior(prior):
+    """A gravity prior is an up vector [3] (known: held fixed) or (up [3], sigma in radians) (soft)."""
+    if prior is None:
+        return None, None
+    if isinstance(prior, tuple) and len(prior) == 2 and np.ndim(prior[1]) == 0:
+        g = np.asarray(prior[0], dtype=float)
+        return g / np.linalg.norm(g), float(prior[1])
+    g = np.asarray(prior, dtype=float)
+    return g / np.linalg.norm(g), None
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    order = np.argsort(values)
+    cum = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
+
+
+def _init_gravity_from_fields(up, lat, c_up, c_lat, x, y, cx, cy, width, height) -> np.ndarray:
+    """Roll from the up field and pitch from the latitude field near the principal point.
+
+    At the principal point up = normalize(g_x, g_y) and lat = pitch exactly; the central 20 % of the
+    image is used, robustly (weighted medians), where the focal length barely matters.
+    """
+    near = (np.abs(x - cx) < 0.1 * width + 1) & (np.abs(y - cy) < 0.1 * height + 1)
+    if np.sum(c_up[near]) <= 0 or np.sum(c_lat[near]) <= 0:
+        near = np.ones_like(x, dtype=bool)
+    roll = np.arctan2(-up[near, 0], -up[near, 1])
+    # circular weighted median: unwrap around the weighted mean direction first
+    mean_dir = np.arctan2(np.sum(c_up[near] * np.sin(roll)), np.sum(c_up[near] * np.cos(roll)))
+    roll = mean_dir + np.angle(np.exp(1j * (roll - mean_dir)))
+    roll0 = _weighted_median(roll, c_up[near] + 1e-12)
+    pitch0 = _weighted_median(lat[near], c_lat[near] + 1e-12)
+    return gravity_from_roll_pitch(roll0, pitch0)
+
+
+def refine_camera(
+    up: np.ndarray,
+    latitude: np.ndarray,
+    up_confidence: np.ndarray | None = None,
+    latitude_confidence: np.ndarray | None = None,
+    *,
+    focal_prior=None,
+    gravity_prior=None,
+    image_size: tuple[int, int] | None = None,
+    pixel_xy: tuple[np.ndarray, np.ndarray] | None = None,
+    focal_init: float | None = None,
+    gravity_init: np.ndarray | None = None,
+    conf: dict | None = None,
+) -> CameraFit:
+    """Fit focal length and gravity to one camera's perspective fields.
+
+    Args:
+        up: [H x W x 2] predicted up-vector field (unit 2-vectors, image axes x right, y down).
+        latitude: [H x W] predicted latitude in radians.
+        up_confidence, latitude_confidence: [H x W] weights in [0, 1] (default: all ones).
+        focal_prior: known focal in pixels (held fixed), or (focal, sigma) in pixels (a soft prior).
+        gravity_prior: known up vector [3] (held fixed), or (up [3], sigma in radians) (a soft prior).
+        image_size: (width, height) of the image the fields describe; default (W, H). The principal
+            point is at (width/2, height/2).
+        pixel_xy: pixel coordinates (x [H x W], y [H x W]) of every field cell in that image, when the
+            fields are not one cell per pixel (e.g. a network's stride-4 output); default the pixel grid.
+        focal_init, gravity_init: a start (e.g. from the pose head); otherwise per ``conf["init"]``.
+        conf: overrides of :data:`default_conf`.
+    Returns:
+        A :class:`CameraFit` in the pixels of ``image_size``.
+    """
+    conf = {**default_conf, **(conf or {})}
+    up = np.asarray(up, dtype=float)
+    latitude = np.asarray(latitude, dtype=float)
+    H_, W_ = latitude.shape
+    if up.shape != (H_, W_, 2):
+        raise ValueError(f"up field must be {H_}x{W_}x2 to match the latitude field, got {up.shape}")
+    c_up = np.ones((H_, W_)) if up_confidence is None else np.asarray(up_confidence, dtype=float)
+    c_lat = np.ones((H_, W_)) if latitude_confidence is None else np.asarray(latitude_confidence, dtype=float)
+    width, height = (W_, H_) if image_size is None else image_size
+    cx, cy = principal_point(width, height)
+    if pixel_xy is None:
+        xs, ys = np.meshgrid(np.arange(W_, dtype=float), np.arange(H_, dtype=float))
+    else:
+        xs, ys = (np.asarray(a, dtype=float) for a in pixel_xy)
+
+    rows, cols = _sample_grid(H_, W_, conf["max_samples"])
+    sel = np.ix_(rows, cols)
+    x, y = xs[sel].ravel(), ys[sel].ravel()
+    up_s = up[sel].reshape(-1, 2)
+    norm = np.linalg.norm(up_s, axis=1, keepdims=True)
+    up_s = up_s / np.maximum(norm, 1e-12)
+    lat_s = latitude[sel].ravel()
+    cu, cl = c_up[sel].ravel(), c_lat[sel].ravel()
+    valid = np.isfinite(up_s).all(axis=1) & np.isfinite(lat_s) & (norm[:, 0] > 1e-6)
+    cu, cl = np.where(valid, cu, 0.0), np.where(valid, cl, 0.0)
+    up_s, lat_s = np.where(valid[:, None], up_s, 0.0), np.where(valid, lat_s, 0.0)
+
+    focal_value, focal_sigma = _parse_focal_prior(focal_prior)
+    gravity_value, gravity_sigma = _parse_gravity_prior(gravity_prior)
+    fix_focal = focal_value is not None and focal_sigma is None
+    fix_gravity = gravity_value is not None and gravity_sigma is None
+    problem = _Problem(
+        x, y, up_s, np.sin(lat_s), cu, cl, cx, cy, conf["huber_scale"],
+        None if focal_sigma is None else (np.log(focal_value), focal_sigma / focal_value),
+        None if gravity_sigma is None else (gravity_value, gravity_sigma),
+    )  # fmt: skip
+
+    log_f_min = float(np.log(focal_from_vfov(np.radians(conf["max_vfov_deg"]), height)))
+    log_f_max = float(np.log(focal_from_vfov(np.radians(conf["min_vfov_deg"]), height)))
+
+    # --- start
+    if gravity_init is not None:
+        g = np.asarray(gravity_init, dtype=float)
+    elif gravity_value is not None:
+        g = gravity_value.copy()
+    elif conf["init"] == "fields":
+        g = _init_gravity_from_fields(up_s, lat_s, cu, cl, x, y, cx, cy, width, height)
+    else:
+        g = np.array([0.0, -1.0, 0.0])
+    g = g / np.linalg.norm(g)
+    if focal_init is not None:
+        log_f = float(np.log(focal_init))
+    elif focal_value is not None:
+        log_f = float(np.log(focal_value))
+    elif conf["init"] == "fields":
+        candidates = np.log(focal_from_vfov(np.radians(np.asarray(conf["init_vfov_grid_deg"])), height))
+        log_f = float(min(candidates, key=lambda lf: problem.cost(g, lf)))
+    else:
+        log_f = float(np.log(0.7 * max(width, height)))
+    log_f = float(np.clip(log_f, log_f_min, log_f_max))
+
+    free = np.array([not fix_gravity, not fix_gravity, not fix_focal])
+    usable = bool(np.any(cu > 0) or np.any(cl > 0))
+    lam = conf["lambda_init"]
+    cost = problem.cost(g, log_f)
+    history = [cost]
+    iterations, converged = 0, False
+    H, grad, bread, meat = problem.normal_equations(g, log_f)
+    while usable and iterations < conf["max_iterations"] and free.any():
+        iterations += 1
+        Hf = H[np.ix_(free, free)]
+        A = Hf + lam * np.diag(np.diag(Hf) + 1e-12)
+        try:
+            step_free = -np.linalg.solve(A, grad[free])
+        except np.linalg.LinAlgError:
+            break
+        step = np.zeros(3)
+        step[free] = step_free
+        g_new = retract_gravity(g, step[:2]) if free[0] else g
+        log_f_new = float(np.clip(log_f + step[2], log_f_min, log_f_max))
+        new_cost = problem.cost(g_new, log_f_new)
+        if new_cost < cost:
+            decrease = cost - new_cost
+            g, log_f, cost = g_new, log_f_new, new_cost
+            history.append(cost)
+            lam = max(lam * 0.1, 1e-10)
+            H, grad, bread, meat = problem.normal_equations(g, log_f)
+            if decrease <= conf["relative_tolerance"] * (cost + decrease) or cost < 1e-24:
+                converged = True
+                break
+        else:
+            lam *= 10.0
+            if lam > conf["lambda_max"]:
+                converged = True  # no step lowers the cost: a minimum to numerical precision
+                break
+
+    # --- uncertainty: the robust (sandwich) covariance of an M-estimator, H⁻¹·M·H⁻¹ with M = Σ gₙgₙᵀ.
+    # Unlike s²·H⁻¹ it stays honest when the Huber weights and confidences make residuals unequal.
+    cov = np.zeros((3, 3))
+    if not usable:
+        cov[np.ix_(free, free)] = np.inf
+    elif free.any():
+        Bf, Mf = bread[np.ix_(free, free)], meat[np.ix_(free, free)]
+        try:
+            H_inv = np.linalg.inv(Bf)
+            cov[np.ix_(free, free)] = H_inv @ Mf @ H_inv
+        except np.linalg.LinAlgError:
+            cov[np.ix_(free, free)] = np.inf
+    cov *= conf["sigma_inflation"] ** 2
+
+    roll, pitch = roll_pitch_from_gravity(g)
+    f = float(np.exp(log_f))
+    dvfov_dlogf = -height * f / (f * f + height * height / 4.0)
+    sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    sigma = {
+        "focal_px": float(f * sig[2]),
+        "vfov_deg": float(np.degrees(abs(dvfov_dlogf) * sig[2])),
+        "roll_deg": float(np.degrees(sig[1] / max(np.cos(pitch), 1e-9))),
+        "pitch_deg": float(np.degrees(sig[0])),
+    }
+    return CameraFit(
+        width=int(width),
+        height=int(height),
+        focal_px=f,
+        gravity_up=g,
+        roll_deg=float(np.degrees(roll)),
+        pitch_deg=float(np.degrees(pitch)),
+        vfov_deg=float(np.degrees(vfov_from_focal(f, height))),
+        sigma=sigma,
+        covariance=cov,
+        cost=cost,
+        iterations=iterations,
+        converged=converged,
+        history=history,
+    )
