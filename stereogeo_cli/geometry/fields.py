@@ -79,6 +79,18 @@ def fields_and_jacobians(
         up [N x 2], sin_latitude [N], d up / dθ [N x 2 x 3], d sin(latitude) / dθ [N x 3].
         The latitude enters as its sine, which is what the refiner's residual uses.
     """
+    up, sin_lat, perp, k, J_lat = fields_and_jacobian_factors(gravity, focal, x, y, cx, cy)
+    return up, sin_lat, perp[:, :, None] * k[:, None, :], J_lat
+
+
+def fields_and_jacobian_factors(
+    gravity: np.ndarray, focal: float, x: np.ndarray, y: np.ndarray, cx: float, cy: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """As :func:`fields_and_jacobians`, with the up Jacobian in its rank-one form d up / dθ = perp·kᵀ.
+
+    Returns up [N x 2], sin_latitude [N], perp [N x 2] (the unit normal of up), k [N x 3], and
+    d sin(latitude) / dθ [N x 3]. The refiner uses the factors: |perp| = 1 makes JᵀJ = k·kᵀ.
+    """
     g = np.asarray(gravity, dtype=float)
     B = tangent_basis(g)  # [3 x 2]
     u, v = _normalised(x, y, focal, cx, cy)
@@ -94,7 +106,6 @@ def fields_and_jacobians(
     # perpᵀ d a / d g = (perp_x, perp_y, -perp·(u, v)); d(u, v)/d log f = -(u, v)
     k[:, :2] = (np.stack([perp[:, 0], perp[:, 1], -perp_uv], axis=-1) @ B) / a_norm[:, None]
     k[:, 2] = g[2] * perp_uv / a_norm
-    J_up = perp[:, :, None] * k[:, None, :]
 
     # sin(lat) = g · ray, ray = p/|p|, p = (u, v, 1); d ray / d log f = (I - ray·rayᵀ)(-u, -v, 0)/|p|
     p_norm = np.sqrt(u * u + v * v + 1.0)
@@ -104,4 +115,4 @@ def fields_and_jacobians(
     J_lat[:, :2] = ray @ B
     ray_uv = ray[:, 0] * u + ray[:, 1] * v  # ray · (u, v, 0)
     J_lat[:, 2] = (-(g[0] * u + g[1] * v) + sin_lat * ray_uv) / p_norm
-    return up, sin_lat, J_up, J_lat
+    return up, sin_lat, perp, k, J_lat

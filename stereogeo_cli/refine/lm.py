@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stereogeo_cli.geometry.camera import focal_from_vfov, principal_point, vfov_from_focal
-from stereogeo_cli.geometry.fields import fields_and_jacobians, up_and_sin_latitude
+from stereogeo_cli.geometry.fields import fields_and_jacobian_factors, up_and_sin_latitude
 from stereogeo_cli.geometry.gravity import (
     gravity_from_roll_pitch,
     retract_gravity,
@@ -117,52 +117,57 @@ class _Problem:
         data = (np.dot(self.c_up, rho_up) + np.dot(self.c_lat, rho_lat)) / self.n
         return float(data) + self._prior_cost(g, log_f)
 
-    def normal_equations(self, g: np.ndarray, log_f: float):
-        """H [3 x 3], gradient [3] (both ×N/2 of the cost's) and Σ gₙgₙᵀ [3 x 3] over samples n."""
-        up, sin_lat, J_up, J_lat = fields_and_jacobians(g, np.exp(log_f), self.x, self.y, self.cx, self.cy)
+    def normal_equations(self, g: np.ndarray, log_f: float, covariance: bool = False):
+        """H [3 x 3] and gradient [3] of the cost (both ×N/2), in the Gauss–Newton form with IRLS weights.
+
+        With ``covariance``, also the exact Hessian of the robust cost ("bread") and Σ gₙgₙᵀ over the
+        samples' gradients ("meat") for the sandwich covariance bread⁻¹·meat·bread⁻¹.
+        """
+        up, sin_lat, perp, k, J_lat = fields_and_jacobian_factors(
+            g, np.exp(log_f), self.x, self.y, self.cx, self.cy
+        )
         r_up = self.up - up
         r_lat = self.sin_lat - sin_lat
         s_up = np.sum(r_up * r_up, axis=1)
-        _, d_up = huber(s_up, self.scale)
-        _, d_lat = huber(r_lat * r_lat, self.scale)
-        w_up = self.c_up * d_up
-        w_lat = self.c_lat * d_lat
-        # residual r = pred - model, so d r / dθ = -J
-        J_up = J_up.reshape(-1, 3)
-        wJ_up = J_up * np.repeat(w_up, 2)[:, None]
+        s_lat = r_lat * r_lat
+        w_up = self.c_up * huber(s_up, self.scale)[1]
+        w_lat = self.c_lat * huber(s_lat, self.scale)[1]
+        # d up / dθ = perp·kᵀ with |perp| = 1, so Jᵀ W J = Σ w k kᵀ and Jᵀ W r = Σ w (perp·r) k.
+        # The residual is prediction - model, so its Jacobian is -J.
+        r_perp = np.sum(perp * r_up, axis=1)
+        wk = k * w_up[:, None]
         wJ_lat = J_lat * w_lat[:, None]
-        H = wJ_up.T @ J_up + wJ_lat.T @ J_lat
-        grad = -(wJ_up.T @ r_up.ravel() + wJ_lat.T @ r_lat)
-        # For the covariance: the exact Hessian of the robust cost ("bread") and Σ gₙgₙᵀ ("meat").
-        # Where the Huber loss is linear it has no curvature along the residual: the bread keeps only
-        # the component of J across the residual there (for the up field) or nothing (for the latitude).
-        inside_up = s_up <= self.scale**2
-        r_hat = r_up / np.sqrt(np.maximum(s_up, 1e-300))[:, None]
-        J3 = J_up.reshape(-1, 2, 3)
-        Jr = np.einsum("nk,nki->ni", r_hat, J3)  # r̂ᵀ J per sample
-        bread = wJ_up.T @ J_up - ((w_up * ~inside_up)[:, None] * Jr).T @ Jr
-        inside_lat = r_lat * r_lat <= self.scale**2
-        bread += (wJ_lat * inside_lat[:, None]).T @ J_lat
-        g_up = (wJ_up * r_up.reshape(-1, 1)).reshape(-1, 2, 3).sum(axis=1)
-        g_lat = wJ_lat * r_lat[:, None]
-        meat = g_up.T @ g_up + g_lat.T @ g_lat
+        H = wk.T @ k + wJ_lat.T @ J_lat
+        grad = -(wk.T @ r_perp + wJ_lat.T @ r_lat)
+        bread = meat = None
+        if covariance:
+            # Where the Huber loss is linear it has no curvature along the residual: the bread keeps the
+            # part of the up Jacobian across the residual there, and nothing of the latitude's.
+            outside_up = s_up > self.scale**2
+            along = r_perp**2 / np.maximum(s_up, 1e-300)  # (r̂·perp)², the share of J along the residual
+            bread = (wk * np.where(outside_up, 1.0 - along, 1.0)[:, None]).T @ k
+            bread += (wJ_lat * (s_lat <= self.scale**2)[:, None]).T @ J_lat
+            per_sample = wk * r_perp[:, None] + wJ_lat * r_lat[:, None]
+            meat = per_sample.T @ per_sample
         if self.focal_prior is not None:
-            inv_var = 1.0 / self.focal_prior[1] ** 2
-            H[2, 2] += inv_var
-            bread[2, 2] += inv_var
-            meat[2, 2] += inv_var  # a prior is one more observation with its own variance
-            grad[2] += (log_f - self.focal_prior[0]) * inv_var
+            info = np.zeros((3, 3))
+            info[2, 2] = 1.0 / self.focal_prior[1] ** 2
+            H += info
+            grad[2] += (log_f - self.focal_prior[0]) * info[2, 2]
+            if covariance:  # a prior is one more observation with its own variance
+                bread, meat = bread + info, meat + info
         if self.gravity_prior is not None:
             B = tangent_basis(g)
-            inv_var = 1.0 / self.gravity_prior[1] ** 2
-            H[:2, :2] += B.T @ B * inv_var
-            bread[:2, :2] += B.T @ B * inv_var
-            meat[:2, :2] += B.T @ B * inv_var
-            grad[:2] += B.T @ (g - self.gravity_prior[0]) * inv_var
+            info = np.zeros((3, 3))
+            info[:2, :2] = B.T @ B / self.gravity_prior[1] ** 2
+            H += info
+            grad[:2] += B.T @ (g - self.gravity_prior[0]) / self.gravity_prior[1] ** 2
+            if covariance:
+                bread, meat = bread + info, meat + info
         return H, grad, bread, meat
 
 
-def _parse_focal_prior(prior, default_sigma_rel=0.0):
+def _parse_focal_prior(prior):
     """A focal prior is a value in pixels (known: held fixed) or (value, sigma) in pixels (soft)."""
     if prior is None:
         return None, None
@@ -189,22 +194,45 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
-def _init_gravity_from_fields(up, lat, c_up, c_lat, x, y, cx, cy, width, height) -> np.ndarray:
-    """Roll from the up field and pitch from the latitude field near the principal point.
+def initial_estimate(
+    up: np.ndarray,
+    latitude: np.ndarray,
+    c_up: np.ndarray,
+    c_lat: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    width: int,
+    height: int,
+    *,
+    gravity: np.ndarray | None = None,
+    focal: float | None = None,
+    conf: dict | None = None,
+) -> tuple[np.ndarray, float]:
+    """A start for the refiner read off the fields: (up vector [3], focal in pixels).
 
-    At the principal point up = normalize(g_x, g_y) and lat = pitch exactly; the central 20 % of the
-    image is used, robustly (weighted medians), where the focal length barely matters.
+    At the principal point up = normalize(g_x, g_y) and latitude = pitch, whatever the focal: roll and
+    pitch are the confidence-weighted medians over the central 20 % of the image. The focal is then
+    the best of a few vFoV candidates by the refiner's own cost. Arrays are the N field samples
+    (up [N x 2], the others [N]); a known ``gravity`` or ``focal`` is kept.
     """
-    near = (np.abs(x - cx) < 0.1 * width + 1) & (np.abs(y - cy) < 0.1 * height + 1)
-    if np.sum(c_up[near]) <= 0 or np.sum(c_lat[near]) <= 0:
-        near = np.ones_like(x, dtype=bool)
-    roll = np.arctan2(-up[near, 0], -up[near, 1])
-    # circular weighted median: unwrap around the weighted mean direction first
-    mean_dir = np.arctan2(np.sum(c_up[near] * np.sin(roll)), np.sum(c_up[near] * np.cos(roll)))
-    roll = mean_dir + np.angle(np.exp(1j * (roll - mean_dir)))
-    roll0 = _weighted_median(roll, c_up[near] + 1e-12)
-    pitch0 = _weighted_median(lat[near], c_lat[near] + 1e-12)
-    return gravity_from_roll_pitch(roll0, pitch0)
+    conf = {**default_conf, **(conf or {})}
+    cx, cy = principal_point(width, height)
+    if gravity is None:
+        near = (np.abs(x - cx) < 0.1 * width + 1) & (np.abs(y - cy) < 0.1 * height + 1)
+        if np.sum(c_up[near]) <= 0 or np.sum(c_lat[near]) <= 0:
+            near = np.ones_like(x, dtype=bool)
+        roll = np.arctan2(-up[near, 0], -up[near, 1])
+        # circular median: unwrap around the weighted mean direction first
+        mean_dir = np.arctan2(np.sum(c_up[near] * np.sin(roll)), np.sum(c_up[near] * np.cos(roll)))
+        roll = mean_dir + np.angle(np.exp(1j * (roll - mean_dir)))
+        roll0 = _weighted_median(roll, c_up[near] + 1e-12)
+        pitch0 = _weighted_median(latitude[near], c_lat[near] + 1e-12)
+        gravity = gravity_from_roll_pitch(roll0, pitch0)
+    if focal is None:
+        problem = _Problem(x, y, up, np.sin(latitude), c_up, c_lat, cx, cy, conf["huber_scale"], None, None)
+        candidates = np.log(focal_from_vfov(np.radians(np.asarray(conf["init_vfov_grid_deg"])), height))
+        focal = float(np.exp(min(candidates, key=lambda lf: problem.cost(gravity, lf))))
+    return np.asarray(gravity, dtype=float), float(focal)
 
 
 def refine_camera(
@@ -283,20 +311,21 @@ def refine_camera(
         g = np.asarray(gravity_init, dtype=float)
     elif gravity_value is not None:
         g = gravity_value.copy()
-    elif conf["init"] == "fields":
-        g = _init_gravity_from_fields(up_s, lat_s, cu, cl, x, y, cx, cy, width, height)
     else:
-        g = np.array([0.0, -1.0, 0.0])
-    g = g / np.linalg.norm(g)
+        g = None if conf["init"] == "fields" else np.array([0.0, -1.0, 0.0])
     if focal_init is not None:
         log_f = float(np.log(focal_init))
     elif focal_value is not None:
         log_f = float(np.log(focal_value))
-    elif conf["init"] == "fields":
-        candidates = np.log(focal_from_vfov(np.radians(np.asarray(conf["init_vfov_grid_deg"])), height))
-        log_f = float(min(candidates, key=lambda lf: problem.cost(g, lf)))
     else:
-        log_f = float(np.log(0.7 * max(width, height)))
+        log_f = None if conf["init"] == "fields" else float(np.log(0.7 * max(width, height)))
+    if g is None or log_f is None:
+        known_focal = None if log_f is None else float(np.exp(log_f))
+        g, focal = initial_estimate(
+            up_s, lat_s, cu, cl, x, y, width, height, gravity=g, focal=known_focal, conf=conf
+        )
+        log_f = float(np.log(focal))
+    g = g / np.linalg.norm(g)
     log_f = float(np.clip(log_f, log_f_min, log_f_max))
 
     free = np.array([not fix_gravity, not fix_gravity, not fix_focal])
@@ -305,7 +334,7 @@ def refine_camera(
     cost = problem.cost(g, log_f)
     history = [cost]
     iterations, converged = 0, False
-    H, grad, bread, meat = problem.normal_equations(g, log_f)
+    H, grad, _, _ = problem.normal_equations(g, log_f)
     while usable and iterations < conf["max_iterations"] and free.any():
         iterations += 1
         Hf = H[np.ix_(free, free)]
@@ -324,7 +353,7 @@ def refine_camera(
             g, log_f, cost = g_new, log_f_new, new_cost
             history.append(cost)
             lam = max(lam * 0.1, 1e-10)
-            H, grad, bread, meat = problem.normal_equations(g, log_f)
+            H, grad, _, _ = problem.normal_equations(g, log_f)
             if decrease <= conf["relative_tolerance"] * (cost + decrease) or cost < 1e-24:
                 converged = True
                 break
@@ -340,6 +369,7 @@ def refine_camera(
     if not usable:
         cov[np.ix_(free, free)] = np.inf
     elif free.any():
+        _, _, bread, meat = problem.normal_equations(g, log_f, covariance=True)
         Bf, Mf = bread[np.ix_(free, free)], meat[np.ix_(free, free)]
         try:
             H_inv = np.linalg.inv(Bf)

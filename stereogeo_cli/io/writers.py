@@ -1,0 +1,56 @@
+"""``write_calibration``: every output format of DESIGN §7 from one :class:`StereoCalibration`."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.io.atomic import write_files_atomically
+from stereogeo_cli.io.calibration import Rectification, StereoCalibration, rectify
+from stereogeo_cli.io.colmap import render_colmap
+from stereogeo_cli.io.kalibr import render_kalibr
+from stereogeo_cli.io.opencv_yaml import render_opencv
+from stereogeo_cli.io.report import render_report
+from stereogeo_cli.io.ros import render_ros
+
+Renderer = Callable[[StereoCalibration, Rectification], dict[str, str]]
+
+FORMATS: dict[str, Renderer] = {
+    "opencv": render_opencv,  # intrinsics.yml, extrinsics.yml
+    "ros": render_ros,  # left.yaml, right.yaml
+    "kalibr": render_kalibr,  # camchain.yaml
+    "colmap": render_colmap,  # cameras.txt
+    "json": render_report,  # report.json
+}
+DEFAULT_FORMATS = tuple(FORMATS)
+
+
+def write_calibration(
+    out_dir: str | os.PathLike,
+    calibration: StereoCalibration,
+    formats: Sequence[str] = DEFAULT_FORMATS,
+    *,
+    alpha: float = 0.0,
+) -> list[Path]:
+    """Write the calibration files of ``formats`` into ``out_dir``; return their paths.
+
+    Formats: ``opencv`` (intrinsics.yml, extrinsics.yml), ``ros`` (left.yaml, right.yaml), ``kalibr``
+    (camchain.yaml), ``colmap`` (cameras.txt), ``json`` (report.json). ``alpha`` is the free scaling of
+    ``cv2.stereoRectify`` for R1, R2, P1, P2, Q (0: only valid pixels in the rectified images, 1: all
+    pixels of the originals). Everything is rendered before anything is written, and the writes are atomic.
+
+    Raises :class:`StereoGeoError` (exit code 2) for an unknown format or an output folder that cannot be
+    made or written.
+    """
+    if isinstance(formats, str):
+        formats = (formats,)
+    unknown = [f for f in formats if f not in FORMATS]
+    if unknown:
+        raise StereoGeoError(f"unknown output format {unknown[0]!r}; choose from {', '.join(FORMATS)}")
+    rect = rectify(calibration, alpha)
+    files: dict[str, str] = {}
+    for name in dict.fromkeys(formats):  # in order, each once
+        files.update(FORMATS[name](calibration, rect))
+    return write_files_atomically(out_dir, files)
