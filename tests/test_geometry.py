@@ -20,7 +20,7 @@ from stereogeo_cli.geometry import (
     quaternion_from_rotation,
     quaternion_to_rotation,
     resize_crop_for_network,
-    retract_gravity,
+    retract_on_sphere,
     roll_pitch_from_gravity,
     rotation_angle,
     rotation_between_vectors,
@@ -83,7 +83,7 @@ def test_tangent_basis_is_pitch_and_roll_directions():
         )
         np.testing.assert_allclose(B[:, 0], d_pitch, atol=1e-8)
         np.testing.assert_allclose(B[:, 1], d_roll / np.cos(pitch), atol=1e-8)
-        g2 = retract_gravity(g, np.array([0.01, -0.02]))
+        g2 = retract_on_sphere(g, np.array([0.01, -0.02]))
         assert np.linalg.norm(g2) == pytest.approx(1.0)
         assert gravity_angle(g, g2) == pytest.approx(np.hypot(0.01, 0.02), rel=1e-9)
 
@@ -109,7 +109,7 @@ def test_field_jacobians_match_central_differences(size):
             step[i] = eps
 
             def at(s, g=g, f=f, B=B):
-                return up_and_sin_latitude(retract_gravity(g, s[:2], B), f * np.exp(s[2]), x, y, cx, cy)
+                return up_and_sin_latitude(retract_on_sphere(g, s[:2], B), f * np.exp(s[2]), x, y, cx, cy)
 
             (up_p, lat_p), (up_m, lat_m) = at(step), at(-step)
             num_up, num_lat = (up_p - up_m) / (2 * eps), (lat_p - lat_m) / (2 * eps)

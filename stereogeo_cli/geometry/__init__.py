@@ -23,7 +23,7 @@ from stereogeo_cli.geometry.gravity import (
     gravity_angle,
     gravity_coupling_error,
     gravity_from_roll_pitch,
-    retract_gravity,
+    retract_on_sphere,
     roll_pitch_from_gravity,
     tangent_basis,
 )
@@ -44,7 +44,7 @@ __all__ = [
     "resize_crop_for_network", "vfov_from_focal", "essential_matrix", "fundamental_matrix",
     "symmetric_epipolar_distance", "fields_and_jacobians", "latitude_at", "latitude_field", "pixel_grid",
     "up_at", "up_field", "couple_rotation_to_gravity", "gravity_angle", "gravity_coupling_error",
-    "gravity_from_roll_pitch", "retract_gravity", "roll_pitch_from_gravity", "tangent_basis",
+    "gravity_from_roll_pitch", "retract_on_sphere", "roll_pitch_from_gravity", "tangent_basis",
     "axis_angle_from_rotation", "closest_rotation", "quaternion_from_rotation", "quaternion_to_rotation",
     "rotation_angle", "rotation_between_vectors", "rotation_error", "rotation_from_axis_angle", "skew",
 ]  # fmt: skip

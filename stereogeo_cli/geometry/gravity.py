@@ -45,8 +45,8 @@ def tangent_basis(gravity: np.ndarray) -> np.ndarray:
     return np.stack([e_pitch, e_roll], axis=1)
 
 
-def retract_gravity(gravity: np.ndarray, delta: np.ndarray, basis: np.ndarray | None = None) -> np.ndarray:
-    """Move ``gravity`` [3] along the sphere by the tangent step ``delta`` [2] (exponential map)."""
+def retract_on_sphere(gravity: np.ndarray, delta: np.ndarray, basis: np.ndarray | None = None) -> np.ndarray:
+    """Move a unit vector [3] along the sphere by the tangent step ``delta`` [2] (exponential map)."""
     B = tangent_basis(gravity) if basis is None else basis
     step = B @ np.asarray(delta, dtype=float)
     angle = np.linalg.norm(step)

@@ -16,7 +16,7 @@ from stereogeo_cli.geometry.camera import focal_from_vfov, principal_point, vfov
 from stereogeo_cli.geometry.fields import fields_and_jacobian_factors, up_and_sin_latitude
 from stereogeo_cli.geometry.gravity import (
     gravity_from_roll_pitch,
-    retract_gravity,
+    retract_on_sphere,
     roll_pitch_from_gravity,
     tangent_basis,
 )
@@ -345,7 +345,7 @@ def refine_camera(
             break
         step = np.zeros(3)
         step[free] = step_free
-        g_new = retract_gravity(g, step[:2]) if free[0] else g
+        g_new = retract_on_sphere(g, step[:2]) if free[0] else g
         log_f_new = float(np.clip(log_f + step[2], log_f_min, log_f_max))
         new_cost = problem.cost(g_new, log_f_new)
         if new_cost < cost:

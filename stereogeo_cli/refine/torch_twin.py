@@ -30,7 +30,7 @@ def tangent_basis(g: torch.Tensor) -> torch.Tensor:
     return torch.stack([e_pitch, e_roll], dim=-1)
 
 
-def retract_gravity(g: torch.Tensor, delta: torch.Tensor, basis: torch.Tensor) -> torch.Tensor:
+def retract_on_sphere(g: torch.Tensor, delta: torch.Tensor, basis: torch.Tensor) -> torch.Tensor:
     """Exponential map on the sphere: g [B x 3] moved by tangent steps delta [B x 2]."""
     step = (basis @ delta.unsqueeze(-1)).squeeze(-1)
     angle = step.norm(dim=-1, keepdim=True)
@@ -150,7 +150,7 @@ def refine_batch(
         diag = torch.diagonal(H, dim1=1, dim2=2) + 1e-12
         A = H + lam[:, None, None] * diag[:, None, :] * eye
         step = -torch.linalg.solve(A, grad.unsqueeze(-1)).squeeze(-1)
-        g_new = retract_gravity(g, step[:, :2], tangent_basis(g))
+        g_new = retract_on_sphere(g, step[:, :2], tangent_basis(g))
         log_f_new = torch.minimum(torch.maximum(log_f + step[:, 2], log_f_min), log_f_max)
         accept = _cost(g_new, log_f_new, data, scale) < cost
         g = torch.where(accept[:, None], g_new, g)

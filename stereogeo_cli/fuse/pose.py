@@ -1,0 +1,227 @@
+"""The rig's relative pose: essential matrix from matches, refined jointly with gravity and the pose head.
+
+Convention (fixed): ``X_right = R @ X_left + T``, T in metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from stereogeo_cli.fuse.matches import Matches
+from stereogeo_cli.geometry.epipolar import fundamental_matrix
+from stereogeo_cli.geometry.gravity import (
+    couple_rotation_to_gravity,
+    gravity_angle,
+    retract_on_sphere,
+    tangent_basis,
+)
+from stereogeo_cli.geometry.rotation import axis_angle_from_rotation, rotation_from_axis_angle
+
+default_conf = {
+    "min_matches": 20,  # fewer matches than this: the pose head and gravity alone
+    "min_inliers": 15,  # fewer essential-matrix inliers than this: the pose head and gravity alone
+    "ransac_threshold_px": 1.0,  # MAGSAC threshold on the epipolar error, pixels
+    "ransac_confidence": 0.9999,
+    "sampson_scale_px": 1.0,  # Huber scale of the Sampson error in the joint refinement, pixels
+    "min_noise_px": 0.25,  # floor of the estimated match noise (keeps the data from swamping the priors)
+    "iterations": 15,  # Gauss–Newton/LM steps of the joint refinement
+    "prior_rotation_sigma_deg": 5.0,  # 1-sigma of the pose head's rotation
+    "prior_direction_sigma_deg": 15.0,  # 1-sigma of the pose head's translation direction
+}
+
+
+@dataclass
+class RelativePose:
+    """Rotation [3 x 3], unit translation direction [3], and how they were obtained."""
+
+    R: np.ndarray
+    t_direction: np.ndarray
+    source: str  # "matches" or "pose_head"
+    matches_found: int = 0
+    inliers: int = 0
+    sigma_rotation_deg: float = float("inf")
+    sigma_direction_deg: float = float("inf")
+    gravity_error_deg: float | None = None  # angle between R·g_left and g_right after the fusion
+    notes: list[str] = field(default_factory=list)
+
+    def translation(self, baseline_m: float) -> np.ndarray:
+        """T [3] in metres for a baseline |T| in metres."""
+        return self.t_direction * float(baseline_m)
+
+
+def _normalise(points: np.ndarray, K: np.ndarray) -> np.ndarray:
+    homogeneous = np.column_stack([points, np.ones(len(points))])
+    out = homogeneous @ np.linalg.inv(K).T
+    return out[:, :2] / out[:, 2:]
+
+
+def sampson_errors(F: np.ndarray, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Signed Sampson errors [N] in pixels of matches left, right [N x 2] under F (x_rightᵀ F x_left = 0)."""
+    pl = np.column_stack([left, np.ones(len(left))])
+    pr = np.column_stack([right, np.ones(len(right))])
+    Fl = pl @ F.T
+    Ftr = pr @ F
+    algebraic = np.sum(pr * Fl, axis=1)
+    denom = Fl[:, 0] ** 2 + Fl[:, 1] ** 2 + Ftr[:, 0] ** 2 + Ftr[:, 1] ** 2
+    return algebraic / np.sqrt(np.maximum(denom, 1e-300))
+
+
+def essential_pose(matches: Matches, K_left: np.ndarray, K_right: np.ndarray, conf: dict | None = None):
+    """R, unit t and the inlier mask from matches via MAGSAC and the cheirality check, or None."""
+    conf = {**default_conf, **(conf or {})}
+    if len(matches) < 5:
+        return None
+    nl, nr = _normalise(matches.left, K_left), _normalise(matches.right, K_right)
+    focal = 0.5 * (K_left[0, 0] + K_right[0, 0])
+    E, mask = cv2.findEssentialMat(
+        nl, nr, np.eye(3), method=cv2.USAC_MAGSAC, prob=conf["ransac_confidence"],
+        threshold=conf["ransac_threshold_px"] / focal,
+    )  # fmt: skip
+    if E is None or E.shape != (3, 3) or mask is None:
+        return None
+    # distanceThresh: with short baselines most points lie far away in units of |t|; keep them all
+    count, R, t, pose_mask, _ = cv2.recoverPose(E, nl, nr, np.eye(3), distanceThresh=1e9, mask=mask.copy())
+    inliers = (pose_mask.ravel() > 0) & (mask.ravel() > 0)
+    if count < 5:
+        return None
+    return R, t.ravel() / np.linalg.norm(t), inliers
+
+
+def _gravity_error_deg(R, gravity_left, gravity_right) -> float:
+    return float(np.degrees(gravity_angle(R @ gravity_left, gravity_right)))
+
+
+def _rotation_residual(R: np.ndarray, R_ref: np.ndarray) -> np.ndarray:
+    return axis_angle_from_rotation(R @ R_ref.T)
+
+
+def fuse_relative_pose(
+    matches: Matches,
+    K_left: np.ndarray,
+    K_right: np.ndarray,
+    *,
+    gravity_left: np.ndarray | None = None,
+    gravity_right: np.ndarray | None = None,
+    gravity_sigma_rad: float | None = None,
+    prior_R: np.ndarray | None = None,
+    prior_t: np.ndarray | None = None,
+    conf: dict | None = None,
+) -> RelativePose:
+    """Relative pose from matches, gravity and the pose head, each weighted by its uncertainty.
+
+    Args:
+        matches: pixel matches in the two images (undistorted pixels).
+        K_left, K_right: [3 x 3] intrinsics (the refined ones).
+        gravity_left, gravity_right: up vectors [3] of each camera, with ``gravity_sigma_rad`` the 1-sigma
+            of the angle between R·g_left and g_right expected from their errors (both cameras').
+        prior_R, prior_t: the pose head's rotation [3 x 3] and translation [3] (any scale), or None.
+    Returns:
+        A :class:`RelativePose`. With enough matches: the essential-matrix pose refined on its inliers
+        (robust Sampson error) with soft gravity coupling (R·g_left = g_right) and the pose head as a
+        prior. Otherwise the pose head, rotated by the least amount that makes it agree with gravity.
+    """
+    conf = {**default_conf, **(conf or {})}
+    has_gravity = gravity_left is not None and gravity_right is not None and gravity_sigma_rad
+    notes: list[str] = []
+    found = len(matches)
+    initial = essential_pose(matches, K_left, K_right, conf) if found >= conf["min_matches"] else None
+    if initial is None or initial[2].sum() < conf["min_inliers"]:
+        if prior_R is None or prior_t is None:
+            raise ValueError("too few matches for the relative pose and no pose-head prior to fall back on")
+        inliers = 0 if initial is None else int(initial[2].sum())
+        notes.append(
+            f"too few matches ({found} found, {inliers} inliers): pose from the pose head and gravity"
+        )
+        R = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
+        t = np.asarray(prior_t, dtype=float)
+        return RelativePose(
+            R=R, t_direction=t / np.linalg.norm(t), source="pose_head", matches_found=found, inliers=inliers,
+            sigma_rotation_deg=float(conf["prior_rotation_sigma_deg"]),
+            sigma_direction_deg=float(conf["prior_direction_sigma_deg"]),
+            gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
+            notes=notes,
+        )  # fmt: skip
+
+    R, t, inlier_mask = initial
+    priors = _Priors(
+        gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad, prior_R, prior_t,
+        np.radians(conf["prior_rotation_sigma_deg"]), np.radians(conf["prior_direction_sigma_deg"]),
+    )  # fmt: skip
+    # Two rounds: refine on the MAGSAC inliers, then re-select the inliers among all matches with the
+    # refined model (MAGSAC's set misses good matches and keeps a few bad ones) and refine again.
+    for _ in range(2):
+        errors = sampson_errors(fundamental_matrix(K_left, K_right, R, t), matches.left, matches.right)
+        noise = max(1.4826 * float(np.median(np.abs(errors[inlier_mask]))), conf["min_noise_px"])
+        R, t, H = _refine_pose(
+            R, t, matches.left[inlier_mask], matches.right[inlier_mask], K_left, K_right, noise, priors, conf
+        )
+        errors = sampson_errors(fundamental_matrix(K_left, K_right, R, t), matches.left, matches.right)
+        inlier_mask = np.abs(errors) < max(3.0 * noise, conf["ransac_threshold_px"])
+    cov = np.linalg.inv(H)
+    return RelativePose(
+        R=R, t_direction=t, source="matches", matches_found=found, inliers=int(inlier_mask.sum()),
+        sigma_rotation_deg=float(np.degrees(np.sqrt(np.trace(cov[:3, :3])))),
+        sigma_direction_deg=float(np.degrees(np.sqrt(np.trace(cov[3:, 3:])))),
+        gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
+        notes=notes,
+    )  # fmt: skip
+
+
+@dataclass
+class _Priors:
+    gravity_left: np.ndarray | None  # None: no gravity coupling
+    gravity_right: np.ndarray | None
+    gravity_sigma: float | None
+    R: np.ndarray | None
+    t: np.ndarray | None
+    rotation_sigma: float
+    direction_sigma: float
+
+
+def _refine_pose(R, t, left, right, K_left, K_right, noise_px, priors: _Priors, conf):
+    """LM on (rotation update [3], direction tangent [2]): robust Sampson errors in units of the match
+    noise, plus the soft gravity coupling and the pose-head prior in units of their sigmas."""
+
+    def residuals(R_, t_):
+        parts = [sampson_errors(fundamental_matrix(K_left, K_right, R_, t_), left, right) / noise_px]
+        if priors.gravity_left is not None:
+            parts.append((R_ @ priors.gravity_left - priors.gravity_right) / priors.gravity_sigma)
+        if priors.R is not None:
+            parts.append(_rotation_residual(R_, priors.R) / priors.rotation_sigma)
+        if priors.t is not None:
+            parts.append((t_ - priors.t / np.linalg.norm(priors.t)) / priors.direction_sigma)
+        return np.concatenate(parts)
+
+    def moved(R_, t_, delta):
+        return rotation_from_axis_angle(delta[:3]) @ R_, retract_on_sphere(t_, delta[3:], tangent_basis(t_))
+
+    n_data = len(left)
+    huber_k = conf["sampson_scale_px"] / noise_px  # Huber threshold in units of the noise
+    lam, eps = 1e-3, 1e-7
+    H = np.eye(5)
+    for _ in range(conf["iterations"]):
+        r = residuals(R, t)
+        w = np.ones_like(r)
+        data_abs = np.abs(r[:n_data])
+        w[:n_data] = np.where(data_abs <= huber_k, 1.0, huber_k / np.maximum(data_abs, 1e-12))
+        J = np.empty((len(r), 5))
+        for i in range(5):
+            d = np.zeros(5)
+            d[i] = eps
+            J[:, i] = (residuals(*moved(R, t, d)) - residuals(*moved(R, t, -d))) / (2 * eps)
+        H = J.T @ (J * w[:, None])
+        step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), J.T @ (w * r))
+        R_new, t_new = moved(R, t, step)
+        r_new = residuals(R_new, t_new)
+        if float(np.sum(w * r_new * r_new)) < float(np.sum(w * r * r)):
+            R, t, lam = R_new, t_new, lam * 0.1
+            if np.linalg.norm(step) < 1e-10:
+                break
+        else:
+            lam *= 10
+            if lam > 1e6:
+                break
+    return R, t, H

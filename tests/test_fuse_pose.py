@@ -1,0 +1,98 @@
+import numpy as np
+import pytest
+
+from stereogeo_cli.fuse import Matches, fuse_relative_pose
+from stereogeo_cli.geometry import (
+    gravity_angle,
+    gravity_from_roll_pitch,
+    intrinsic_matrix,
+    rotation_error,
+    rotation_from_axis_angle,
+)
+
+
+def _rig(rng):
+    R = rotation_from_axis_angle(rng.normal(0, np.radians(2.0), 3))
+    baseline = float(np.exp(rng.uniform(np.log(0.05), np.log(0.8))))
+    T = R @ -np.array([baseline, 0, 0]) + rng.normal(0, 0.01 * baseline, 3)
+    return R, T / np.linalg.norm(T) * baseline
+
+
+def _matches(rng, K_left, K_right, R, T, count=300, noise_px=0.5, outliers=0.2, size=(640, 480)):
+    X = np.column_stack([rng.uniform(-4, 4, count), rng.uniform(-3, 3, count), rng.uniform(2, 15, count)])
+    xl = X @ K_left.T
+    xr = (X @ R.T + T) @ K_right.T
+    xl, xr = xl[:, :2] / xl[:, 2:], xr[:, :2] / xr[:, 2:]
+    xl += rng.normal(0, noise_px, xl.shape)
+    xr += rng.normal(0, noise_px, xr.shape)
+    bad = rng.random(count) < outliers
+    xr[bad] = rng.uniform(0, size[0], (bad.sum(), 2))
+    return Matches(xl, xr)
+
+
+def _direction_error_deg(a, b):
+    return np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1)))
+
+
+def test_pose_from_matches_is_sub_tenth_degree():
+    rng = np.random.default_rng(40)
+    K_left, K_right = intrinsic_matrix(500, 640, 480), intrinsic_matrix(540, 640, 480)
+    rot_errors, dir_errors = [], []
+    for _ in range(20):
+        R, T = _rig(rng)
+        g_left = gravity_from_roll_pitch(*rng.uniform(-0.5, 0.5, 2))
+        pose = fuse_relative_pose(
+            _matches(rng, K_left, K_right, R, T), K_left, K_right,
+            gravity_left=g_left, gravity_right=R @ g_left, gravity_sigma_rad=np.radians(1.0),
+            prior_R=rotation_from_axis_angle(rng.normal(0, 0.03, 3)) @ R, prior_t=T + rng.normal(0, 0.02, 3),
+        )  # fmt: skip
+        assert pose.source == "matches" and pose.inliers > 150
+        rot_errors.append(np.degrees(rotation_error(pose.R, R)))
+        dir_errors.append(_direction_error_deg(pose.t_direction, T))
+    assert np.median(rot_errors) < 0.1, rot_errors
+    assert np.median(dir_errors) < 2.0, dir_errors
+
+
+def test_gravity_coupling_helps_with_few_matches():
+    """With a few noisy matches, a well-known gravity pulls the rotation towards the truth."""
+    rng = np.random.default_rng(41)
+    K = intrinsic_matrix(500, 640, 480)
+    with_g, without_g = [], []
+    for _ in range(15):
+        R, T = _rig(rng)
+        g_left = gravity_from_roll_pitch(*rng.uniform(-0.5, 0.5, 2))
+        m = _matches(rng, K, K, R, T, count=40, noise_px=2.0, outliers=0.1)
+        prior = {"prior_R": rotation_from_axis_angle(rng.normal(0, 0.05, 3)) @ R, "prior_t": T}
+        coupled = fuse_relative_pose(
+            m,
+            K,
+            K,
+            gravity_left=g_left,
+            gravity_right=R @ g_left,
+            gravity_sigma_rad=np.radians(0.05),
+            **prior,
+        )
+        alone = fuse_relative_pose(m, K, K, **prior)
+        with_g.append(np.degrees(rotation_error(coupled.R, R)))
+        without_g.append(np.degrees(rotation_error(alone.R, R)))
+        assert coupled.gravity_error_deg <= np.degrees(gravity_angle(alone.R @ g_left, R @ g_left)) + 1e-9
+    assert np.median(with_g) < np.median(without_g)
+
+
+def test_too_few_matches_falls_back_to_the_pose_head_made_consistent_with_gravity():
+    rng = np.random.default_rng(42)
+    K = intrinsic_matrix(500, 640, 480)
+    R, T = _rig(rng)
+    g_left = gravity_from_roll_pitch(0.2, -0.1)
+    prior_R = rotation_from_axis_angle([0.02, -0.01, 0.03]) @ R
+    pose = fuse_relative_pose(
+        _matches(rng, K, K, R, T, count=8), K, K,
+        gravity_left=g_left, gravity_right=R @ g_left, gravity_sigma_rad=0.01, prior_R=prior_R, prior_t=T,
+    )  # fmt: skip
+    assert pose.source == "pose_head"
+    assert "too few matches" in pose.notes[0]
+    np.testing.assert_allclose(pose.R @ g_left, R @ g_left, atol=1e-12)
+    assert rotation_error(pose.R, R) < rotation_error(prior_R, R)
+    np.testing.assert_allclose(pose.t_direction, T / np.linalg.norm(T))
+    with pytest.raises(ValueError, match="too few matches"):
+        fuse_relative_pose(Matches(np.zeros((3, 2)), np.zeros((3, 2))), K, K)
