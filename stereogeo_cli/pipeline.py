@@ -1,0 +1,205 @@
+"""The calibrate pipeline: images → network → per-camera refiner → stereo fusion → a StereoCalibration.
+
+One :class:`Calibrator` holds one ONNX Runtime session and is reused for every pair of a run.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from stereogeo_cli.errors import CalibrationFailed
+from stereogeo_cli.fuse import RelativePose, fuse_relative_pose, match_features
+from stereogeo_cli.geometry import ResizeCrop, intrinsic_matrix, vfov_from_focal
+from stereogeo_cli.io import StereoCalibration
+from stereogeo_cli.io.images import check_pair
+from stereogeo_cli.network.runtime import FieldNetwork, ViewFields
+from stereogeo_cli.refine import CameraFit, refine_camera
+
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+DEFAULT_MODEL = MODELS_DIR / "stereogeo.onnx"
+
+default_conf = {
+    "min_mean_confidence": 0.05,  # below this mean field confidence a view is too ambiguous to calibrate
+    "known_focal_sigma": 0.0,  # 0: a focal given by the user is held fixed; > 0: relative 1-sigma
+    "match": {},  # overrides of stereogeo_cli.fuse.matches.default_conf
+    "fuse": {},  # overrides of stereogeo_cli.fuse.pose.default_conf
+    "refine": {},  # overrides of stereogeo_cli.refine.default_conf
+}
+
+
+def default_model_path() -> Path:
+    """The model shipped with the package (``models/stereogeo.onnx`` next to the package)."""
+    return DEFAULT_MODEL
+
+
+@dataclass
+class CalibrationResult:
+    """Everything one pair gave: the calibration to write, and the pieces it came from."""
+
+    calibration: StereoCalibration
+    left: CameraFit  # in the pixels of the original left image
+    right: CameraFit
+    pose: RelativePose
+    warnings: list[str] = field(default_factory=list)
+
+    def report(self) -> dict:
+        """The JSON report (DESIGN §3) with the pose's provenance and any warnings added."""
+        report = self.calibration.to_report()
+        report["pose"] = {
+            "source": self.pose.source,
+            "sigma_rotation_deg": _finite(self.pose.sigma_rotation_deg),
+            "sigma_direction_deg": _finite(self.pose.sigma_direction_deg),
+            "gravity_error_deg": self.pose.gravity_error_deg,
+            "rotation_deg": float(np.degrees(np.linalg.norm(_rotvec(self.calibration.R)))),
+        }
+        report["warnings"] = list(self.warnings)
+        return report
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    from stereogeo_cli.geometry import axis_angle_from_rotation
+
+    return axis_angle_from_rotation(R)
+
+
+def fit_in_original_pixels(fit: CameraFit, rc: ResizeCrop) -> CameraFit:
+    """A fit made on the network input, expressed in the pixels of the original image.
+
+    Roll and pitch are unchanged (the crop keeps the principal point at the centre); the focal scales
+    by the resize; the vFoV is recomputed for the original height (a crop changes it).
+    """
+    width, height = rc.in_size
+    focal = rc.focal_to_input(fit.focal_px)
+    rel_sigma = fit.sigma["focal_px"] / fit.focal_px
+    dvfov_dlogf = height * focal / (focal * focal + height * height / 4.0)
+    sigma = {
+        **fit.sigma,
+        "focal_px": focal * rel_sigma,
+        "vfov_deg": math.degrees(dvfov_dlogf * rel_sigma),
+    }
+    return replace(
+        fit,
+        width=width,
+        height=height,
+        focal_px=focal,
+        vfov_deg=math.degrees(float(vfov_from_focal(focal, height))),
+        sigma=sigma,
+    )
+
+
+class Calibrator:
+    """Calibrates stereo pairs with one network session.
+
+    Args:
+        model_path: the ONNX model (default: the shipped one).
+        threads: ONNX Runtime intra-op threads (0: ONNX Runtime's default).
+        conf: overrides of :data:`default_conf`.
+    """
+
+    def __init__(self, model_path: str | Path | None = None, threads: int = 0, conf: dict | None = None):
+        self.conf = {**default_conf, **(conf or {})}
+        self.model_path = Path(model_path) if model_path is not None else default_model_path()
+        self.network = FieldNetwork(self.model_path, threads=threads)
+
+    def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:
+        rc = view.resize_crop
+        prior = None
+        if known_focal is not None:
+            prior = rc.focal_to_output(known_focal)
+            if self.conf["known_focal_sigma"] > 0:
+                prior = (prior, prior * self.conf["known_focal_sigma"])
+        fit = refine_camera(
+            view.up, view.latitude, view.up_confidence, view.latitude_confidence,
+            image_size=view.image_size, pixel_xy=view.pixel_xy, focal_prior=prior, conf=self.conf["refine"],
+        )  # fmt: skip
+        return fit_in_original_pixels(fit, rc)
+
+    def calibrate(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        *,
+        baseline_m: float | None = None,
+        focal_left: float | None = None,
+        focal_right: float | None = None,
+    ) -> CalibrationResult:
+        """Calibrate one pair of RGB images [H x W x 3] uint8 (the two sizes may differ).
+
+        Args:
+            baseline_m: the known |T| in metres; without it the pose head's learned metric scale is used.
+            focal_left, focal_right: known focal lengths in pixels of each image, held fixed.
+        Raises:
+            CalibrationFailed: the images are blank or the fields too ambiguous to trust.
+        """
+        timing: dict[str, float] = {}
+        start = time.perf_counter()
+        check_pair(left, right)
+        tick = time.perf_counter()
+        net = self.network.predict(left, right)
+        timing["network"] = (time.perf_counter() - tick) * 1e3
+
+        warnings: list[str] = []
+        for name, view in (("left", net.left), ("right", net.right)):
+            confidence = 0.5 * (float(np.mean(view.up_confidence)) + float(np.mean(view.latitude_confidence)))
+            if confidence < self.conf["min_mean_confidence"]:
+                raise CalibrationFailed(
+                    f"the {name} image shows too little structure to calibrate from "
+                    f"(mean field confidence {confidence:.3f})"
+                )
+        tick = time.perf_counter()
+        fit_left = self._refine_view(net.left, focal_left)
+        fit_right = self._refine_view(net.right, focal_right)
+        timing["refine"] = (time.perf_counter() - tick) * 1e3
+        for name, fit in (("left", fit_left), ("right", fit_right)):
+            if not np.isfinite(fit.sigma["focal_px"]) and focal_left is None and focal_right is None:
+                raise CalibrationFailed(f"the {name} camera's focal length could not be determined")
+
+        K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
+        K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
+        tick = time.perf_counter()
+        matches = match_features(left, right, self.conf["match"])
+        timing["matching"] = (time.perf_counter() - tick) * 1e3
+        tick = time.perf_counter()
+        gravity_sigma = math.radians(
+            math.sqrt(
+                sum(fit.sigma[k] ** 2 for fit in (fit_left, fit_right) for k in ("roll_deg", "pitch_deg"))
+            )
+        )
+        pose = fuse_relative_pose(
+            matches, K_left, K_right,
+            gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
+            gravity_sigma_rad=max(gravity_sigma, 1e-4) if math.isfinite(gravity_sigma) else None,
+            prior_R=net.rotation(), prior_t=net.translation, conf=self.conf["fuse"],
+        )  # fmt: skip
+        timing["fusion"] = (time.perf_counter() - tick) * 1e3
+        warnings.extend(pose.notes)
+
+        if baseline_m is not None:
+            baseline, scale_source = float(baseline_m), "baseline"
+        else:
+            baseline, scale_source = float(np.linalg.norm(net.translation)), "learned"
+            if not np.isfinite(baseline) or baseline <= 1e-6:
+                baseline = 1.0
+                warnings.append("the pose head gave no usable metric scale: T has unit length")
+        timing["total"] = (time.perf_counter() - start) * 1e3
+        calibration = StereoCalibration(
+            K_left=K_left, K_right=K_right,
+            image_size_left=(fit_left.width, fit_left.height),
+            image_size_right=(fit_right.width, fit_right.height),
+            R=pose.R, T=pose.translation(baseline),
+            gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
+            sigma_left=fit_left.sigma, sigma_right=fit_right.sigma,
+            scale_source=scale_source, matches_found=pose.matches_found, matches_inliers=pose.inliers,
+            timing_ms=timing, model_file=self.model_path.name, model_sha256=self.network.model_sha256,
+            notes="; ".join(warnings),
+        )  # fmt: skip
+        return CalibrationResult(calibration, fit_left, fit_right, pose, warnings)

@@ -1,0 +1,164 @@
+"""ONNX export of StereoGeoNet (parity, metadata, dynamic sizes) and the torch-free runtime."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.network.checkpoint import save_checkpoint
+from stereogeo_cli.network.export import export_onnx
+from stereogeo_cli.network.model import OUTPUT_NAMES, StereoGeoNet
+from stereogeo_cli.network.runtime import FieldNetwork, cell_pixel_coordinates
+
+torch.set_num_threads(2)
+
+PARITY_SIZES = ((256, 256), (192, 320))  # (height, width): square and non-square
+
+
+@pytest.fixture(scope="module")
+def model():
+    torch.manual_seed(0)
+    return StereoGeoNet().eval()
+
+
+@pytest.fixture(scope="module")
+def exported(model, tmp_path_factory):
+    path = tmp_path_factory.mktemp("onnx") / "stereogeo.onnx"
+    report = export_onnx(model, path, model_version="test-1", training_data="none", parity_sizes=PARITY_SIZES)
+    return path, report
+
+
+def test_export_parity_with_torch(exported):
+    path, report = exported
+    assert path.is_file() and report["path"] == path
+    assert set(report["max_abs_error"]) == set(OUTPUT_NAMES)
+    assert max(report["max_abs_error"].values()) <= 1e-4
+    assert not list(path.parent.glob(".*.tmp"))
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # a new file's mode, not mkstemp's 0600
+
+
+def test_exported_graph_has_dynamic_inputs_and_metadata(exported):
+    path, _ = exported
+    proto = onnx.load(str(path))
+    assert proto.opset_import[0].version >= 17
+    assert not any(t.data_location == onnx.TensorProto.EXTERNAL for t in proto.graph.initializer)
+    shapes = {
+        i.name: [d.dim_param or d.dim_value for d in i.type.tensor_type.shape.dim] for i in proto.graph.input
+    }
+    assert shapes == {
+        "left": ["batch", 3, "left_height", "left_width"],
+        "right": ["batch", 3, "right_height", "right_width"],
+    }
+    assert [o.name for o in proto.graph.output] == list(OUTPUT_NAMES)
+    meta = {p.key: p.value for p in proto.metadata_props}
+    keys = (
+        "input_size_rule",
+        "normalization",
+        "stereogeo_version",
+        "output_stride",
+        "training_data",
+        "model_version",
+        "input_short_side",
+        "input_multiple",
+        "field_coordinates",
+        "pose_convention",
+    )
+    for key in keys:
+        assert meta[key], key
+    assert meta["model_version"] == "test-1" and meta["output_stride"] == "4"
+
+
+def test_runtime_matches_torch_on_real_preprocessing(model, exported):
+    path, _ = exported
+    network = FieldNetwork(path, threads=2)
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)  # 4:3 → 320 x 426 → crop 320 x 416
+    right = rng.integers(0, 256, (400, 300, 3), dtype=np.uint8)  # portrait, a different size
+    out = network.predict(left, right)
+
+    assert out.left.image_size == (416, 320) and out.right.image_size == (320, 416)
+    assert out.left.up.shape == (80, 104, 2) and out.left.latitude.shape == (80, 104)
+    assert out.right.up.shape == (104, 80, 2) and out.right.up_confidence.shape == (104, 80)
+    np.testing.assert_allclose(np.linalg.norm(out.left.up, axis=-1), 1.0, atol=1e-5)
+    x, y = out.left.pixel_xy
+    assert x.shape == (80, 104) and x[0, 0] == 1.5 and x[0, 1] == 5.5 and y[1, 0] == 5.5
+    np.testing.assert_array_equal(out.right.pixel_xy[0], cell_pixel_coordinates(104, 80, 4)[0])
+    assert out.left.resize_crop.focal_to_input(320.0) == pytest.approx(240.0)
+    assert np.linalg.norm(out.quaternion) == pytest.approx(1.0) and out.quaternion[0] >= 0
+    np.testing.assert_allclose(out.rotation @ out.rotation.T, np.eye(3), atol=1e-6)
+
+    tensors = [torch.from_numpy(network.prepare(image)[0]) for image in (left, right)]
+    with torch.no_grad():
+        expected = model(*tensors)
+    np.testing.assert_allclose(out.left.up, expected["left_up"][0].permute(1, 2, 0).numpy(), atol=1e-4)
+    np.testing.assert_allclose(out.right.latitude, expected["right_latitude"][0].numpy(), atol=1e-4)
+    np.testing.assert_allclose(out.translation, expected["translation"][0].numpy(), atol=1e-4)
+    assert len(network.model_sha256) == 64
+
+
+def test_export_from_checkpoint_file(tmp_path):
+    model = StereoGeoNet(
+        {"pretrained": False, "decoder_dim": 32, "head_dim": 16, "pose_reduce_dim": 32, "pose_hidden_dim": 64}
+    )
+    ckpt = save_checkpoint(tmp_path / "small.pt", model, step=123, training_data="unit-test renders")
+    report = export_onnx(ckpt, tmp_path / "small.onnx", parity_sizes=((64, 64), (64, 128)))
+    assert report["metadata"]["training_step"] == "123"
+    assert report["metadata"]["training_data"] == "unit-test renders"
+    assert FieldNetwork(tmp_path / "small.onnx").metadata["model_version"] == "untrained"
+
+
+def test_failed_parity_check_writes_no_file(tmp_path):
+    model = StereoGeoNet(
+        {"pretrained": False, "decoder_dim": 16, "head_dim": 8, "pose_reduce_dim": 16, "pose_hidden_dim": 32}
+    )
+    with pytest.raises(StereoGeoError, match="parity") as info:
+        export_onnx(model, tmp_path / "m.onnx", parity_sizes=((64, 64), (64, 96)), atol=0.0)
+    assert info.value.exit_code == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_runtime_does_not_import_torch():
+    code = (
+        "import sys, stereogeo_cli.network.runtime, stereogeo_cli.network; "
+        "assert 'torch' not in sys.modules, 'torch imported'"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [(None, "not found"), (b"", "not a valid ONNX"), (b"this is not a model", "not a valid ONNX")],
+)
+def test_bad_model_files_raise_stereogeo_error(tmp_path, content, message):
+    path = tmp_path / "model.onnx"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(StereoGeoError, match=message) as info:
+        FieldNetwork(path)
+    assert info.value.exit_code == 2
+    assert "\n" not in str(info.value)
+
+
+def test_truncated_and_foreign_models_raise_stereogeo_error(tmp_path, exported):
+    path, _ = exported
+    with pytest.raises(StereoGeoError, match="not a file"):
+        FieldNetwork(tmp_path)
+    truncated = tmp_path / "truncated.onnx"
+    truncated.write_bytes(path.read_bytes()[:200_000])
+    with pytest.raises(StereoGeoError, match="not a valid ONNX"):
+        FieldNetwork(truncated)
+    # A valid ONNX model that is not ours.
+    x = onnx.helper.make_tensor_value_info("x", onnx.TensorProto.FLOAT, [1])
+    y = onnx.helper.make_tensor_value_info("y", onnx.TensorProto.FLOAT, [1])
+    graph = onnx.helper.make_graph([onnx.helper.make_node("Identity", ["x"], ["y"])], "g", [x], [y])
+    foreign = tmp_path / "foreign.onnx"
+    onnx.save(onnx.helper.make_model(graph, opset_imports=[onnx.helper.make_opsetid("", 18)]), str(foreign))
+    with pytest.raises(StereoGeoError, match="not a stereogeo network"):
+        FieldNetwork(foreign)

@@ -1,0 +1,140 @@
+"""StereoGeoNet in torch: pretrained encoder, output shapes and ranges, checkpoints."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.geometry import pixel_grid
+from stereogeo_cli.network.checkpoint import load_checkpoint, save_checkpoint
+from stereogeo_cli.network.model import (
+    OUTPUT_NAMES,
+    EfficientNetLite0,
+    StereoGeoNet,
+    cell_coordinates,
+    normalize_image,
+    pretrained_lite0_path,
+)
+from stereogeo_cli.network.runtime import cell_pixel_coordinates
+
+torch.set_num_threads(2)
+
+
+@pytest.fixture(scope="module")
+def model():
+    torch.manual_seed(0)
+    return StereoGeoNet().eval()
+
+
+def test_pretrained_encoder_loads_every_key_and_matches_the_package_model():
+    from efficientnet_lite_pytorch import EfficientNet
+
+    encoder = EfficientNetLite0().eval()
+    rest = encoder.load_pretrained()  # raises unless every parameter and buffer is matched
+    assert set(rest) == {"_fc.weight", "_fc.bias"}
+    reference = EfficientNet.from_pretrained(
+        "efficientnet-lite0", weights_path=pretrained_lite0_path()
+    ).eval()
+
+    # A simple image: a bright disc on a dark background, plus a gradient (the package pads for 224 x 224).
+    y, x = torch.meshgrid(torch.linspace(-1, 1, 224), torch.linspace(-1, 1, 224), indexing="ij")
+    disc = ((x**2 + y**2) < 0.4).float()
+    image = torch.stack([disc, 0.5 * (x + 1), 0.3 + 0.4 * disc * y.abs()])[None].clamp(0, 1)
+    with torch.no_grad():
+        ours = torch.nn.functional.linear(
+            encoder(normalize_image(image))[0].mean(dim=(2, 3)), rest["_fc.weight"], rest["_fc.bias"]
+        )
+        theirs = reference(normalize_image(image))
+    torch.testing.assert_close(ours, theirs, atol=1e-5, rtol=0)
+    assert theirs.softmax(dim=1).max() > 0.05  # a peaked ImageNet prediction, not noise
+
+
+def test_pretrained_weights_are_in_the_model(model):
+    state = torch.load(pretrained_lite0_path(), map_location="cpu", weights_only=True)
+    torch.testing.assert_close(
+        model.encoder.blocks[15].project.conv.weight, state["_blocks.15._project_conv.weight"]
+    )
+    torch.testing.assert_close(model.encoder.head.bn.running_var, state["_bn1.running_var"])
+
+
+@pytest.mark.parametrize("size_left, size_right", [((96, 128), (96, 128)), ((128, 64), (64, 160))])
+def test_output_shapes_and_ranges(model, size_left, size_right):
+    (h1, w1), (h2, w2) = size_left, size_right
+    with torch.no_grad():
+        out = model(torch.rand(2, 3, h1, w1), torch.rand(2, 3, h2, w2))
+    assert tuple(out) == OUTPUT_NAMES
+    for view, (h, w) in (("left", size_left), ("right", size_right)):
+        assert out[f"{view}_up"].shape == (2, 2, h // 4, w // 4)
+        for key in ("latitude", "up_confidence", "latitude_confidence"):
+            assert out[f"{view}_{key}"].shape == (2, h // 4, w // 4)
+        torch.testing.assert_close(out[f"{view}_up"].norm(dim=1), torch.ones(2, h // 4, w // 4))
+        assert out[f"{view}_latitude"].abs().max() < math.pi / 2
+        for key in ("up_confidence", "latitude_confidence"):
+            assert 0 < out[f"{view}_{key}"].min() and out[f"{view}_{key}"].max() < 1
+    assert out["quaternion"].shape == (2, 4) and out["translation"].shape == (2, 3)
+    torch.testing.assert_close(out["quaternion"].norm(dim=1), torch.ones(2))
+    assert (out["quaternion"][:, 0] >= 0).all()
+
+
+def test_quaternion_sign_is_fixed_and_gradients_flow():
+    model = StereoGeoNet({"pretrained": False}).train()
+    with torch.no_grad():
+        model.pose_head.mlp[-1].bias[:4] = torch.tensor([-1.0, 0.2, 0.0, 0.0])  # raw w < 0 must be flipped
+    out = model(torch.rand(2, 3, 64, 96), torch.rand(2, 3, 96, 64))
+    assert (out["quaternion"][:, 0] > 0).all()
+    sum(v.mean() for v in out.values()).backward()
+    for module in (model.encoder.stem.conv, model.decoder.lateral["4"].conv, model.up_head.out):
+        assert module.weight.grad.abs().sum() > 0
+    assert model.latitude_head.out.weight.grad.abs().sum() > 0
+    assert model.pose_head.mlp[0].weight.grad.abs().sum() > 0
+
+
+def test_cell_coordinates_are_pixel_centre_correct():
+    """Cell (i, j) at stride 4 is the mean of the pixel centres it covers: x = 4j + 1.5."""
+    x, y = pixel_grid(24, 16)
+    x_cells = x.reshape(4, 4, 6, 4).mean(axis=(1, 3))
+    y_cells = y.reshape(4, 4, 6, 4).mean(axis=(1, 3))
+    cx, cy = cell_pixel_coordinates(4, 6, 4)
+    np.testing.assert_array_equal(cx, x_cells)
+    np.testing.assert_array_equal(cy, y_cells)
+    # The model's coordinate channels: the same centres relative to (W/2, H/2), over half the short side.
+    coords = cell_coordinates(torch.zeros(1, 8, 4, 6), 4)[0].numpy()
+    np.testing.assert_allclose(coords[0], (cx - 12) / 8, atol=1e-6)
+    np.testing.assert_allclose(coords[1], (cy - 8) / 8, atol=1e-6)
+
+
+def test_input_sides_must_be_multiples_of_32(model):
+    with pytest.raises(ValueError, match="multiples of 32"):
+        model(torch.rand(1, 3, 240, 320), torch.rand(1, 3, 224, 320))
+
+
+def test_unknown_option_is_refused():
+    with pytest.raises(ValueError, match="unknown"):
+        StereoGeoNet({"decoder_width": 32, "pretrained": False})
+
+
+def test_checkpoint_round_trip(tmp_path, model):
+    path = save_checkpoint(tmp_path / "ckpt.pt", model, step=7, training_data="unit test")
+    raw = torch.load(path, weights_only=True)
+    assert raw["step"] == 7 and raw["conf"]["decoder_dim"] == model.conf["decoder_dim"]
+    loaded, checkpoint = load_checkpoint(path)
+    assert checkpoint["training_data"] == "unit test"
+    images = torch.rand(1, 3, 64, 64), torch.rand(1, 3, 64, 96)
+    with torch.no_grad():
+        a, b = model(*images), loaded(*images)
+    for name in OUTPUT_NAMES:
+        torch.testing.assert_close(a[name], b[name])
+
+
+def test_bad_checkpoints_raise_stereogeo_error(tmp_path):
+    with pytest.raises(StereoGeoError, match="not found"):
+        load_checkpoint(tmp_path / "missing.pt")
+    (tmp_path / "junk.pt").write_bytes(b"\x00junk")
+    with pytest.raises(StereoGeoError) as info:
+        load_checkpoint(tmp_path / "junk.pt")
+    assert info.value.exit_code == 2
+    torch.save({"weights": 1}, tmp_path / "other.pt")
+    with pytest.raises(StereoGeoError, match="not a stereogeo checkpoint"):
+        load_checkpoint(tmp_path / "other.pt")
