@@ -7,14 +7,14 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed
 from stereogeo_cli.fuse import RelativePose, fuse_relative_pose, match_features
-from stereogeo_cli.geometry import ResizeCrop, intrinsic_matrix, vfov_from_focal
+from stereogeo_cli.geometry import intrinsic_matrix
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.images import check_pair
 from stereogeo_cli.network.runtime import FieldNetwork, ViewFields
@@ -71,31 +71,6 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
     return axis_angle_from_rotation(R)
 
 
-def fit_in_original_pixels(fit: CameraFit, rc: ResizeCrop) -> CameraFit:
-    """A fit made on the network input, expressed in the pixels of the original image.
-
-    Roll and pitch are unchanged (the crop keeps the principal point at the centre); the focal scales
-    by the resize; the vFoV is recomputed for the original height (a crop changes it).
-    """
-    width, height = rc.in_size
-    focal = rc.focal_to_input(fit.focal_px)
-    rel_sigma = fit.sigma["focal_px"] / fit.focal_px
-    dvfov_dlogf = height * focal / (focal * focal + height * height / 4.0)
-    sigma = {
-        **fit.sigma,
-        "focal_px": focal * rel_sigma,
-        "vfov_deg": math.degrees(dvfov_dlogf * rel_sigma),
-    }
-    return replace(
-        fit,
-        width=width,
-        height=height,
-        focal_px=focal,
-        vfov_deg=math.degrees(float(vfov_from_focal(focal, height))),
-        sigma=sigma,
-    )
-
-
 class Calibrator:
     """Calibrates stereo pairs with one network session.
 
@@ -121,7 +96,7 @@ class Calibrator:
             view.up, view.latitude, view.up_confidence, view.latitude_confidence,
             image_size=view.image_size, pixel_xy=view.pixel_xy, focal_prior=prior, conf=self.conf["refine"],
         )  # fmt: skip
-        return fit_in_original_pixels(fit, rc)
+        return fit.in_original_pixels(rc)
 
     def calibrate(
         self,

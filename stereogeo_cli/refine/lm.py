@@ -8,11 +8,11 @@ squared residual. Steps that raise the cost are rejected (GeoCalib accepts every
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from stereogeo_cli.geometry.camera import focal_from_vfov, principal_point, vfov_from_focal
+from stereogeo_cli.geometry.camera import ResizeCrop, focal_from_vfov, principal_point, vfov_from_focal
 from stereogeo_cli.geometry.fields import fields_and_jacobian_factors, up_and_sin_latitude
 from stereogeo_cli.geometry.gravity import (
     gravity_from_roll_pitch,
@@ -53,6 +53,26 @@ class CameraFit:
     iterations: int
     converged: bool
     history: list[float] = field(default_factory=list)  # cost after every accepted step
+
+    def in_original_pixels(self, rc: ResizeCrop) -> CameraFit:
+        """This fit, made on a resized and cropped image (e.g. the network input), in the original's pixels.
+
+        Roll and pitch are unchanged (the crop keeps the principal point at the centre); the focal scales
+        by the resize; the vFoV is recomputed for the original height (a crop changes it).
+        """
+        width, height = rc.in_size
+        focal = rc.focal_to_input(self.focal_px)
+        rel_sigma = self.sigma["focal_px"] / self.focal_px
+        dvfov_dlogf = height * focal / (focal * focal + height * height / 4.0)
+        sigma = {
+            **self.sigma,
+            "focal_px": focal * rel_sigma,
+            "vfov_deg": float(np.degrees(dvfov_dlogf * rel_sigma)),
+        }
+        return replace(
+            self, width=width, height=height, focal_px=focal,
+            vfov_deg=float(np.degrees(vfov_from_focal(focal, height))), sigma=sigma,
+        )  # fmt: skip
 
     def to_dict(self) -> dict:
         return {

@@ -1,0 +1,167 @@
+"""Training samples: stereo pairs (from a dataset folder or rendered on the fly) cut to a training size,
+with the exact ground truth of the cut images.
+
+Every sample is resized so that it covers the batch's training size, then centre-cropped to it: the focal
+scales with the resize and the principal point stays at the centre, so the ground truth stays exact
+while batches vary in aspect ratio and field of view.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from stereogeo_cli.geometry import ResizeCrop, apply_resize_crop
+
+TRAIN_SIZES = ((256, 192), (320, 192), (224, 224), (192, 256))  # (width, height): 4:3, 5:3, 1:1, 3:4
+
+
+def cover_crop(width: int, height: int, out_width: int, out_height: int) -> ResizeCrop:
+    """Resize so the image covers (out_width, out_height), then centre-crop to exactly that size."""
+    scale = max(out_width / width, out_height / height)
+    rw, rh = max(out_width, round(width * scale)), max(out_height, round(height * scale))
+    crop = ((rw - out_width) // 2, (rh - out_height) // 2)
+    return ResizeCrop((width, height), scale, (rw, rh), crop, (out_width, out_height))
+
+
+def _camera(calib_camera: dict, rc: ResizeCrop) -> tuple[float, np.ndarray]:
+    K = np.asarray(calib_camera["K"], dtype=float)
+    focal = rc.focal_to_output(0.5 * (K[0, 0] + K[1, 1]))
+    g = calib_camera.get("gravity_up")
+    return focal, np.full(3, np.nan) if g is None else np.asarray(g, dtype=float)
+
+
+def training_sample(left: np.ndarray, right: np.ndarray, calib: dict, size: tuple[int, int]) -> dict:
+    """Cut a pair to ``size`` (width, height) and return tensors with its ground truth.
+
+    Returns ``left``, ``right`` [3 x H x W] float32 in [0, 1]; ``focal`` [2] (left, right) in pixels of the
+    cut images; ``gravity`` [2 x 3] up vectors (NaN when unknown); ``R`` [3 x 3], ``T`` [3] metres;
+    ``has_pose`` and ``has_translation`` (bool tensors: a pure-rotation pair has T = 0).
+    """
+    images, focals, gravities = [], [], []
+    for image, cam in ((left, calib["left"]), (right, calib["right"])):
+        h, w = image.shape[:2]
+        rc = cover_crop(w, h, *size)
+        cut = apply_resize_crop(image, rc)
+        images.append(torch.from_numpy(np.ascontiguousarray(cut.transpose(2, 0, 1))).float().div_(255.0))
+        focal, g = _camera(cam, rc)
+        focals.append(focal)
+        gravities.append(g)
+    has_pose = calib.get("R") is not None and calib.get("T") is not None
+    R = np.asarray(calib["R"], dtype=float) if has_pose else np.eye(3)
+    T = np.asarray(calib["T"], dtype=float) if has_pose else np.zeros(3)
+    return {
+        "left": images[0],
+        "right": images[1],
+        "focal": torch.tensor(focals, dtype=torch.float32),
+        "gravity": torch.tensor(np.stack(gravities), dtype=torch.float32),
+        "R": torch.tensor(R, dtype=torch.float32),
+        "T": torch.tensor(T, dtype=torch.float32),
+        "has_pose": torch.tensor(has_pose),
+        "has_translation": torch.tensor(has_pose and float(np.linalg.norm(T)) > 1e-6),
+    }
+
+
+class FolderPairs:
+    """Pairs of a dataset folder in the project's layout (left/, right/, calib.jsonl)."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        calib_path = self.root / "calib.jsonl"
+        if not calib_path.is_file():
+            from stereogeo_cli.errors import StereoGeoError
+
+            raise StereoGeoError(f"{self.root} is not a dataset folder: {calib_path} is missing")
+        self.records = []
+        for line in calib_path.read_text().splitlines():
+            if line.strip():
+                try:
+                    self.records.append(json.loads(line))
+                except json.JSONDecodeError:
+                    continue  # a line cut by an interrupted writer
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def __getitem__(self, index: int) -> tuple[np.ndarray, np.ndarray, dict]:
+        record = self.records[index]
+        images = []
+        for side in ("left", "right"):
+            image = cv2.imread(str(self.root / side / f"{record['id']}.png"), cv2.IMREAD_COLOR)
+            if image is None:
+                raise FileNotFoundError(self.root / side / f"{record['id']}.png")
+            images.append(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
+        return images[0], images[1], record
+
+
+class RenderedPairs:
+    """Pairs rendered on the fly by the synthetic sampler: pair i of dataset ``seed`` is always the same."""
+
+    def __init__(self, seed: int, count: int, config=None):
+        self.seed, self.count, self.config = seed, count, config
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __getitem__(self, index: int) -> tuple[np.ndarray, np.ndarray, dict]:
+        from stereogeo_cli.synth.sample import sample_pair
+
+        sample = sample_pair(self.seed, index, self.config)
+        return sample.left, sample.right, sample.calib
+
+
+class TrainingPairs(torch.utils.data.Dataset):
+    """Map-style dataset over several sources; items are addressed as (global index, size index)."""
+
+    def __init__(self, sources: list, sizes=TRAIN_SIZES):
+        self.sources = sources
+        self.sizes = tuple(tuple(s) for s in sizes)
+        self.offsets = np.cumsum([0] + [len(s) for s in sources])
+
+    def __len__(self) -> int:
+        return int(self.offsets[-1])
+
+    def __getitem__(self, item: tuple[int, int]) -> dict:
+        index, size_index = item
+        source = int(np.searchsorted(self.offsets, index, side="right") - 1)
+        left, right, calib = self.sources[source][index - int(self.offsets[source])]
+        sample = training_sample(left, right, calib, self.sizes[size_index])
+        sample["index"] = torch.tensor(index)
+        return sample
+
+
+class SizedBatches(torch.utils.data.Sampler):
+    """Batches of one training size each, shuffled per epoch from a seed; split across ranks.
+
+    Iteration starts at ``start_batch`` of the stream of epochs, so a resumed run sees exactly the
+    batches it would have seen without the interruption.
+    """
+
+    def __init__(self, count: int, batch_size: int, n_sizes: int, seed: int, rank: int = 0, world: int = 1,
+                 start_batch: int = 0):  # fmt: skip
+        self.count, self.batch_size, self.n_sizes = count, batch_size, n_sizes
+        self.seed, self.rank, self.world, self.start_batch = seed, rank, world, start_batch
+        self.per_epoch = count // (batch_size * world)
+        if self.per_epoch < 1:
+            raise ValueError(f"{count} pairs are too few for batches of {batch_size} on {world} processes")
+
+    def epoch_batches(self, epoch: int) -> list[list[tuple[int, int]]]:
+        rng = np.random.default_rng([self.seed, epoch])
+        order = rng.permutation(self.count)[: self.per_epoch * self.batch_size * self.world]
+        sizes = rng.integers(self.n_sizes, size=self.per_epoch * self.world)
+        batches = order.reshape(-1, self.batch_size)
+        mine = range(self.rank, len(batches), self.world)
+        return [[(int(i), int(sizes[b])) for i in batches[b]] for b in mine]
+
+    def __iter__(self):
+        epoch, skip = divmod(self.start_batch, self.per_epoch)
+        while True:
+            yield from self.epoch_batches(epoch)[skip:]
+            epoch, skip = epoch + 1, 0
+
+    def __len__(self) -> int:  # an endless stream; DataLoader only needs a number
+        return 1 << 40

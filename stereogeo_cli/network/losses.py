@@ -1,0 +1,164 @@
+"""Training losses (DESIGN §5): field errors, camera errors after the unrolled refiner, and pose errors.
+
+Weights live in :data:`default_conf`; the training config overrides them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from stereogeo_cli.network.model import OUTPUT_STRIDE
+from stereogeo_cli.refine import initial_estimate
+from stereogeo_cli.refine.torch_twin import refine_batch
+
+default_conf = {
+    "up_weight": 1.0,  # L1 of the up-vector field
+    "latitude_weight": 2.0,  # L1 of the latitude field (radians); it carries the focal length
+    "confidence_weight": 0.1,  # BCE of each confidence against exp(-error / scale) of its field
+    "confidence_scale": 0.05,  # error (unit-vector distance or radians) at which the target is 1/e
+    "camera_weight": 1.0,  # L1 of roll, pitch and vFoV (radians) after the unrolled refiner
+    "refiner_steps": 5,  # unrolled LM steps of the torch twin during training
+    "refiner_stride": 2,  # use every n-th field cell in each direction for the refiner
+    "rotation_weight": 5.0,  # smooth L1 of the relative rotation angle (radians)
+    "translation_weight": 1.0,  # smooth L1 of T (metres), of T/|T| and of the angle between them
+    "rotation_beta": 0.01,  # where the smooth L1 turns from quadratic to linear, radians
+    "translation_beta": 0.02,  # the same for T (metres) and the direction terms
+}
+
+
+def cell_centres(height: int, width: int, stride: int = OUTPUT_STRIDE) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pixel centres (x, y) [h x w] of the network's field cells (cell j covers x = s·j + (s-1)/2)."""
+    ys, xs = torch.meshgrid(torch.arange(height // stride), torch.arange(width // stride), indexing="ij")
+    return xs * stride + (stride - 1) / 2, ys * stride + (stride - 1) / 2
+
+
+def ground_truth_fields(gravity: torch.Tensor, focal: torch.Tensor, width: int, height: int):
+    """Up [B x 2 x h x w] and latitude [B x h x w] at the cell centres of images (width x height)."""
+    x, y = cell_centres(height, width)
+    u = (x[None] - width / 2) / focal[:, None, None]
+    v = (y[None] - height / 2) / focal[:, None, None]
+    g = gravity[:, :, None, None]
+    up = F.normalize(torch.stack([g[:, 0] - g[:, 2] * u, g[:, 1] - g[:, 2] * v], dim=1), dim=1)
+    sin_lat = (g[:, 0] * u + g[:, 1] * v + g[:, 2]) / torch.sqrt(u * u + v * v + 1)
+    return up, torch.asin(sin_lat.clamp(-1, 1))
+
+
+def quaternion_to_rotation(q: torch.Tensor) -> torch.Tensor:
+    """[B x 4] (w, x, y, z) → [B x 3 x 3]."""
+    q = F.normalize(q, dim=-1)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], dim=-1).reshape(-1, 3, 3)  # fmt: skip
+
+
+def rotation_angle(R: torch.Tensor) -> torch.Tensor:
+    """Angles [B] in radians of rotations [B x 3 x 3], with a gradient that stays finite at 0."""
+    cos = ((torch.diagonal(R, dim1=1, dim2=2).sum(-1) - 1) / 2).clamp(-1 + 1e-7, 1 - 1e-7)
+    sin = torch.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], -1).norm(
+        dim=-1
+    )
+    return torch.atan2(sin / 2 + 1e-12, cos)
+
+
+def roll_pitch_vfov(gravity: torch.Tensor, focal: torch.Tensor, height: float):
+    g = F.normalize(gravity, dim=-1)
+    roll = torch.atan2(-g[:, 0], -g[:, 1])
+    pitch = torch.asin(g[:, 2].clamp(-1 + 1e-7, 1 - 1e-7))
+    return roll, pitch, 2 * torch.atan(height / (2 * focal))
+
+
+def _angle_diff(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return torch.atan2(torch.sin(a - b), torch.cos(a - b)).abs()
+
+
+def refine_views(out: dict, view: str, height: int, width: int, conf: dict):
+    """Run the torch twin on a view's predicted fields; returns gravity [B x 3] and focal [B] (pixels)."""
+    s = conf["refiner_stride"]
+    up = out[f"{view}_up"][:, :, ::s, ::s]
+    lat = out[f"{view}_latitude"][:, ::s, ::s]
+    c_up = out[f"{view}_up_confidence"][:, ::s, ::s]
+    c_lat = out[f"{view}_latitude_confidence"][:, ::s, ::s]
+    x, y = cell_centres(height, width)
+    x, y = x[::s, ::s].reshape(-1).float(), y[::s, ::s].reshape(-1).float()
+    batch = up.shape[0]
+    up_flat = up.permute(0, 2, 3, 1).reshape(batch, -1, 2)
+    lat_flat, cu, cl = lat.reshape(batch, -1), c_up.reshape(batch, -1), c_lat.reshape(batch, -1)
+    starts = [
+        initial_estimate(
+            up_flat[b].detach().double().numpy(), lat_flat[b].detach().double().numpy(),
+            cu[b].detach().double().numpy(), cl[b].detach().double().numpy(),
+            x.double().numpy(), y.double().numpy(), width, height,
+        )
+        for b in range(batch)
+    ]  # fmt: skip
+    g0 = torch.tensor(np.stack([s_[0] for s_ in starts]), dtype=up.dtype)
+    f0 = torch.tensor([s_[1] for s_ in starts], dtype=up.dtype)
+    size = torch.tensor([[width, height]] * batch, dtype=up.dtype)
+    return refine_batch(up_flat, lat_flat, cu, cl, x, y, size, g0, f0, conf={"steps": conf["refiner_steps"]})
+
+
+def compute_losses(out: dict, batch: dict, conf: dict | None = None, with_refiner: bool = True) -> dict:
+    """All loss terms (scalars) and ``total``, for model outputs ``out`` on a training ``batch``."""
+    conf = {**default_conf, **(conf or {})}
+    losses: dict[str, torch.Tensor] = {}
+    height, width = batch["left"].shape[-2:]
+    has_gravity = torch.isfinite(batch["gravity"]).all(-1)  # [B x 2]
+    terms = {k: [] for k in ("up", "latitude", "confidence", "camera")}
+    for v, view in enumerate(("left", "right")):
+        mask = has_gravity[:, v]
+        if not mask.any():
+            continue
+        g = batch["gravity"][:, v][mask]
+        f = batch["focal"][:, v][mask]
+        up_gt, lat_gt = ground_truth_fields(g, f, width, height)
+        up_err = (out[f"{view}_up"][mask] - up_gt).abs().sum(1)
+        lat_err = (out[f"{view}_latitude"][mask] - lat_gt).abs()
+        terms["up"].append(up_err.mean())
+        terms["latitude"].append(lat_err.mean())
+        scale = conf["confidence_scale"]
+        for name, err in (("up_confidence", up_err), ("latitude_confidence", lat_err)):
+            target = torch.exp(-err.detach() / scale)
+            terms["confidence"].append(
+                F.binary_cross_entropy(out[f"{view}_{name}"][mask].clamp(1e-6, 1 - 1e-6), target)
+            )
+        if with_refiner and conf["camera_weight"] > 0:
+            sub = {k: t[mask] for k, t in out.items() if k.startswith(view)}
+            g_hat, f_hat = refine_views(sub, view, height, width, conf)
+            r_hat, p_hat, fov_hat = roll_pitch_vfov(g_hat, f_hat, height)
+            r_gt, p_gt, fov_gt = roll_pitch_vfov(g, f, height)
+            camera = _angle_diff(r_hat, r_gt) + (p_hat - p_gt).abs() + (fov_hat - fov_gt).abs()
+            terms["camera"].append(camera.mean())
+    for name, values in terms.items():
+        if values:
+            losses[name] = torch.stack(values).mean()
+
+    # Huber losses divided by their threshold (smooth L1): a unit gradient for large errors, so the
+    # pose terms (radians, metres, often < 0.1) are not dwarfed by the field terms.
+    pose = batch["has_pose"]
+    if pose.any():
+        R_hat = quaternion_to_rotation(out["quaternion"][pose])
+        angle = rotation_angle(R_hat @ batch["R"][pose].transpose(1, 2))
+        losses["rotation"] = F.smooth_l1_loss(angle, torch.zeros_like(angle), beta=conf["rotation_beta"])
+    trans = batch["has_translation"]
+    if trans.any():
+        t_hat, t_gt = out["translation"][trans], batch["T"][trans]
+        d_hat, d_gt = F.normalize(t_hat, dim=-1), F.normalize(t_gt, dim=-1)
+        cos = (d_hat * d_gt).sum(-1).clamp(-1 + 1e-7, 1 - 1e-7)
+        beta = conf["translation_beta"]
+        losses["translation"] = (
+            F.smooth_l1_loss(t_hat, t_gt, beta=beta)
+            + F.smooth_l1_loss(d_hat, d_gt, beta=beta)
+            + F.smooth_l1_loss(torch.acos(cos), torch.zeros_like(cos), beta=beta)
+        )
+    weights = {
+        "up": conf["up_weight"], "latitude": conf["latitude_weight"], "confidence": conf["confidence_weight"],
+        "camera": conf["camera_weight"], "rotation": conf["rotation_weight"],
+        "translation": conf["translation_weight"],
+    }  # fmt: skip
+    losses["total"] = sum(weights[k] * v for k, v in losses.items())
+    return losses

@@ -1,0 +1,309 @@
+"""Training of StereoGeoNet on stereo pairs with exact ground truth (resumable, optionally distributed).
+
+Run with ``stereogeo train`` or, for several processes, ``torchrun --nproc_per_node 2 -m
+stereogeo_cli.network.train ...`` (gloo backend). Every ``checkpoint_minutes`` the state is written to
+``OUT/latest.pt`` (atomically); ``--resume`` continues from it with the same batches it would have seen.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.distributed as dist
+
+from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.network.checkpoint import load_checkpoint, save_checkpoint
+from stereogeo_cli.network.data import TRAIN_SIZES, FolderPairs, RenderedPairs, SizedBatches, TrainingPairs
+from stereogeo_cli.network.losses import compute_losses
+from stereogeo_cli.network.losses import default_conf as loss_defaults
+from stereogeo_cli.network.model import StereoGeoNet
+
+default_conf: dict[str, Any] = {
+    "data": [],  # dataset folders (left/, right/, calib.jsonl) to train on
+    "render": 0,  # additionally render this many pairs on the fly (synthetic sampler), 0 for none
+    "render_seed": 1000,  # dataset seed of the on-the-fly pairs
+    "panoramas": None,  # panorama folder for the on-the-fly pairs' skies and crops
+    "val": None,  # dataset folder for validation (rendered from seeds never used in training)
+    "val_count": 64,  # validation pairs used
+    "out": "runs/train",  # where checkpoints and logs go
+    "steps": 6000,  # optimiser steps in all
+    "batch_size": 8,  # pairs per step and process
+    "sizes": [list(s) for s in TRAIN_SIZES],  # training sizes (width, height); one per batch
+    "input_short_side": 224,  # the inference rule written into the exported model (short side, pixels)
+    "lr": 1e-4,  # AdamW learning rate after warm-up
+    "weight_decay": 1e-4,
+    "warmup_steps": 300,  # linear warm-up from 0
+    "decay_at": [0.7, 0.9],  # fractions of ``steps`` where the learning rate is multiplied by 0.1
+    "clip_grad": 1.0,  # gradient-norm clipping
+    "refiner_start": 500,  # the camera loss through the unrolled refiner starts after this many steps
+    "loss": {},  # overrides of stereogeo_cli.network.losses.default_conf
+    "val_every": 500,  # validation every this many steps (and at the end)
+    "checkpoint_minutes": 5.0,  # write OUT/latest.pt at least this often
+    "log_every": 20,  # a progress line every this many steps
+    "threads": 2,  # torch intra-op threads per process
+    "workers": 1,  # data-loading processes per training process
+    "seed": 0,  # model init, batch order
+    "model_version": None,  # a name for the model (default: OUT's folder name)
+}
+
+
+def lr_at(step: int, conf: dict) -> float:
+    """Linear warm-up, then a step decay ×0.1 at each fraction of ``decay_at``."""
+    if step < conf["warmup_steps"]:
+        return conf["lr"] * (step + 1) / conf["warmup_steps"]
+    passed = sum(step >= frac * conf["steps"] for frac in conf["decay_at"])
+    return conf["lr"] * 0.1**passed
+
+
+def _distributed() -> tuple[int, int]:
+    if "RANK" in os.environ and "WORLD_SIZE" in os.environ and int(os.environ["WORLD_SIZE"]) > 1:
+        if not dist.is_initialized():
+            dist.init_process_group("gloo")
+        return dist.get_rank(), dist.get_world_size()
+    return 0, 1
+
+
+def _to_float(losses: dict) -> dict[str, float]:
+    return {k: float(v.detach()) for k, v in losses.items()}
+
+
+def _sources(conf: dict) -> list:
+    sources: list = [FolderPairs(d) for d in conf["data"]]
+    if conf["render"]:
+        from stereogeo_cli.synth.config import SynthConfig
+
+        panoramas = Path(conf["panoramas"]) if conf["panoramas"] else None
+        sources.append(RenderedPairs(conf["render_seed"], conf["render"], SynthConfig(panoramas=panoramas)))
+    if not sources:
+        raise StereoGeoError("no training data: give --data FOLDER (from make-data) or --render N")
+    return sources
+
+
+@torch.no_grad()
+def validate(model: StereoGeoNet, val: FolderPairs, count: int, short_side: int) -> dict[str, float]:
+    """The product's path on validation pairs: resize/crop, network, NumPy refiner; errors in degrees.
+
+    Returns medians and AUC@1/5/10 of roll, pitch and vFoV errors (both cameras), and the pose head's
+    median rotation error (degrees) and translation error (share of the baseline).
+    """
+    from stereogeo_cli.geometry import (
+        apply_resize_crop,
+        resize_crop_for_network,
+        roll_pitch_from_gravity,
+        rotation_error,
+        vfov_from_focal,
+    )
+    from stereogeo_cli.geometry import quaternion_to_rotation as quat_np
+    from stereogeo_cli.metrics import summarize
+    from stereogeo_cli.network.runtime import cell_pixel_coordinates
+    from stereogeo_cli.refine import refine_camera
+
+    was_training = model.training
+    model.eval()
+    errors: dict[str, list[float]] = {"roll": [], "pitch": [], "vfov": [], "rotation": [], "translation": []}
+    for i in range(min(count, len(val))):
+        left, right, calib = val[i]
+        tensors, rcs = [], []
+        for image in (left, right):
+            rc = resize_crop_for_network(image.shape[1], image.shape[0], short_side)
+            cut = apply_resize_crop(image, rc)
+            tensors.append(torch.from_numpy(np.ascontiguousarray(cut.transpose(2, 0, 1)))[None].float() / 255)
+            rcs.append(rc)
+        out = {k: v[0].numpy().astype(float) for k, v in model(*tensors).items()}
+        for view, rc in zip(("left", "right"), rcs, strict=True):
+            cam = calib[view]
+            if cam.get("gravity_up") is None:
+                continue
+            h, w = out[f"{view}_latitude"].shape
+            fit = refine_camera(
+                out[f"{view}_up"].transpose(1, 2, 0), out[f"{view}_latitude"],
+                out[f"{view}_up_confidence"], out[f"{view}_latitude_confidence"],
+                image_size=rc.out_size, pixel_xy=cell_pixel_coordinates(h, w, 4),
+            )  # fmt: skip
+            fit = fit.in_original_pixels(rc)
+            roll, pitch = np.degrees(roll_pitch_from_gravity(np.asarray(cam["gravity_up"])))
+            K = np.asarray(cam["K"])
+            vfov = np.degrees(vfov_from_focal(K[1, 1], cam["height"]))
+            errors["roll"].append(abs((fit.roll_deg - roll + 180) % 360 - 180))
+            errors["pitch"].append(abs(fit.pitch_deg - pitch))
+            errors["vfov"].append(abs(fit.vfov_deg - vfov))
+        if calib.get("R") is not None:
+            errors["rotation"].append(
+                np.degrees(rotation_error(quat_np(out["quaternion"]), np.asarray(calib["R"])))
+            )
+            T = np.asarray(calib["T"], dtype=float)
+            if np.linalg.norm(T) > 1e-6:
+                errors["translation"].append(
+                    float(np.linalg.norm(out["translation"] - T) / np.linalg.norm(T))
+                )
+    model.train(was_training)
+    metrics: dict[str, float] = {}
+    for name in ("roll", "pitch", "vfov"):
+        for key, value in summarize(np.array(errors[name])).items():
+            metrics[f"{name}_{key}"] = value
+    metrics["rotation_median_deg"] = float(np.median(errors["rotation"])) if errors["rotation"] else math.nan
+    metrics["translation_median_rel"] = (
+        float(np.median(errors["translation"])) if errors["translation"] else math.nan
+    )
+    return metrics
+
+
+class _Log:
+    """Progress lines on stderr and one JSON object per event in OUT/log.jsonl (rank 0 only)."""
+
+    def __init__(self, out: Path, active: bool):
+        self.active = active
+        self.path = out / "log.jsonl"
+
+    def __call__(self, event: str, **values) -> None:
+        if not self.active:
+            return
+        record = {"event": event, "time": time.time(), **values}
+        with open(self.path, "a") as f:
+            f.write(json.dumps(record) + "\n")
+        shown = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items())
+        print(f"[{event}] {shown}", file=sys.stderr, flush=True)
+
+
+def train(conf: dict) -> dict:
+    """Train; returns the last validation metrics (empty without a validation set)."""
+    conf = {**default_conf, **conf}
+    rank, world = _distributed()
+    torch.set_num_threads(int(conf["threads"]))
+    torch.manual_seed(conf["seed"])
+    out = Path(conf["out"])
+    out.mkdir(parents=True, exist_ok=True)
+    log = _Log(out, rank == 0)
+    latest = out / "latest.pt"
+
+    model = StereoGeoNet({"pretrained": True})
+    optimizer = torch.optim.AdamW(model.parameters(), lr=conf["lr"], weight_decay=conf["weight_decay"])
+    step, best = 0, math.inf
+    if conf.get("resume") and latest.is_file():
+        loaded, checkpoint = load_checkpoint(latest)
+        model.load_state_dict(loaded.state_dict())
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        step, best = int(checkpoint["step"]), float(checkpoint.get("best", math.inf))
+        log("resume", step=step)
+    model.train()
+    net: torch.nn.Module = model
+    if world > 1:
+        net = torch.nn.parallel.DistributedDataParallel(model)
+
+    dataset = TrainingPairs(_sources(conf), conf["sizes"])
+    sampler = SizedBatches(
+        len(dataset), conf["batch_size"], len(dataset.sizes), conf["seed"], rank, world, step
+    )
+    loader = torch.utils.data.DataLoader(
+        dataset, batch_sampler=sampler, num_workers=conf["workers"],
+        persistent_workers=conf["workers"] > 0, prefetch_factor=4 if conf["workers"] > 0 else None,
+    )  # fmt: skip
+    val = FolderPairs(conf["val"]) if conf["val"] and rank == 0 else None
+    training_data = ", ".join(
+        [str(d) for d in conf["data"]] + ([f"{conf['render']} rendered"] if conf["render"] else [])
+    )
+    version = conf["model_version"] or out.name
+
+    def save(path: Path, metrics: dict | None = None) -> None:
+        if rank != 0:
+            return
+        save_checkpoint(
+            path, model, step, optimizer=optimizer.state_dict(), best=best, metrics=metrics or {},
+            train_conf=json.loads(json.dumps(conf, default=str)), training_data=training_data,
+            model_version=version, input_short_side=int(conf["input_short_side"]),
+        )  # fmt: skip
+
+    log(
+        "start",
+        step=step,
+        steps=conf["steps"],
+        pairs=len(dataset),
+        world=world,
+        batch_size=conf["batch_size"],
+    )
+    last_save, started, seen = time.monotonic(), time.monotonic(), 0
+    running: dict[str, float] = {}
+    metrics: dict[str, float] = {}
+    iterator = iter(loader)
+    while step < conf["steps"]:
+        batch = next(iterator)
+        for group in optimizer.param_groups:
+            group["lr"] = lr_at(step, conf)
+        outputs = net(batch["left"], batch["right"])
+        losses = compute_losses(outputs, batch, conf["loss"], with_refiner=step >= conf["refiner_start"])
+        optimizer.zero_grad(set_to_none=True)
+        losses["total"].backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), conf["clip_grad"])
+        if torch.isfinite(grad_norm):
+            optimizer.step()
+        step += 1
+        seen += batch["left"].shape[0] * world
+        for k, v in _to_float(losses).items():
+            running[k] = 0.9 * running.get(k, v) + 0.1 * v
+        if step % conf["log_every"] == 0 or step == 1:
+            rate = seen / max(time.monotonic() - started, 1e-9)
+            log("train", step=step, lr=lr_at(step, conf), pairs_per_s=rate, **running)
+        if val is not None and (step % conf["val_every"] == 0 or step == conf["steps"]):
+            metrics = validate(model, val, conf["val_count"], int(conf["input_short_side"]))
+            log("val", step=step, **metrics)
+            score = metrics["roll_median"] + metrics["pitch_median"] + metrics["vfov_median"]
+            if score < best:
+                best = score
+                save(out / "best.pt", metrics)
+        if time.monotonic() - last_save > 60 * conf["checkpoint_minutes"] or step == conf["steps"]:
+            save(latest, metrics)
+            last_save = time.monotonic()
+    if conf.get("dump_replica"):
+        torch.save(model.state_dict(), Path(conf["dump_replica"]) / f"rank{rank}.pt")
+    log("done", step=step, seconds=time.monotonic() - started)
+    if world > 1:
+        dist.barrier()
+        dist.destroy_process_group()
+    return metrics
+
+
+def parse_args(argv: list[str] | None = None) -> dict:
+    """Command-line arguments (for torchrun) → a training config: defaults < --config file < flags."""
+    parser = argparse.ArgumentParser(prog="stereogeo-train", description=__doc__)
+    parser.add_argument("--config", type=Path, help="a JSON file with any of the training settings")
+    parser.add_argument("--data", action="append", help="a dataset folder (repeatable)")
+    parser.add_argument("--resume", action="store_true", help="continue from OUT/latest.pt if it exists")
+    parser.add_argument("--dump-replica", help=argparse.SUPPRESS)
+    for key, value in default_conf.items():
+        if key in ("data", "sizes", "decay_at", "loss"):
+            continue
+        kind = type(value) if value is not None else str
+        parser.add_argument(f"--{key.replace('_', '-')}", type=kind, default=None)
+    args = parser.parse_args(argv)
+    conf = dict(default_conf)
+    if args.config:
+        conf.update(json.loads(args.config.read_text()))
+    for key, value in vars(args).items():
+        if key in ("config",) or value is None:
+            continue
+        conf[key] = value
+    unknown = set(conf["loss"]) - set(loss_defaults)
+    if unknown:
+        raise StereoGeoError(f"unknown loss settings: {sorted(unknown)}")
+    return conf
+
+
+def main(argv: list[str] | None = None) -> None:
+    try:
+        train(parse_args(argv))
+    except StereoGeoError as error:
+        print(f"error: {error}", file=sys.stderr)
+        sys.exit(error.exit_code)
+
+
+if __name__ == "__main__":
+    main()
