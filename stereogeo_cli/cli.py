@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from stereogeo_cli import __version__
-from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.errors import EXIT_INTERNAL, StereoGeoError
 
 app = typer.Typer(
     name="stereogeo",
@@ -39,6 +41,273 @@ def fail(error: StereoGeoError) -> typer.Exit:
     """Print a one-line error on stderr and return the exit to raise."""
     typer.echo(f"error: {error}", err=True)
     return typer.Exit(code=error.exit_code)
+
+
+@app.command("make-data")
+def make_data(
+    out: Annotated[
+        Path | None,
+        typer.Argument(help="Folder for the dataset (left/, right/, calib.jsonl); resumed if it exists."),
+    ] = None,
+    *,
+    count: Annotated[int, typer.Option("--count", "-n", help="Number of stereo pairs to write.")] = 1000,
+    seed: Annotated[int, typer.Option(help="Seed: the same seed and options give the same bytes.")] = 0,
+    workers: Annotated[int, typer.Option(help="Rendering processes to run in parallel.")] = 1,
+    size: Annotated[int, typer.Option(help="Short side of the images in pixels.")] = 240,
+    aspects: Annotated[
+        str, typer.Option(help="Comma-separated aspect ratios (width:height) to draw image sizes from.")
+    ] = "4:3,16:9,1:1,3:2",
+    portrait_share: Annotated[float, typer.Option(help="Share of pairs with portrait images.")] = 0.2,
+    vfov_min: Annotated[float, typer.Option(help="Smallest vertical field of view, in degrees.")] = 20.0,
+    vfov_max: Annotated[float, typer.Option(help="Largest vertical field of view, in degrees.")] = 105.0,
+    baseline_min: Annotated[float, typer.Option(help="Shortest baseline, in metres.")] = 0.05,
+    baseline_max: Annotated[float, typer.Option(help="Longest baseline, in metres.")] = 0.8,
+    max_angle: Annotated[float, typer.Option(help="Largest rig roll and pitch, in degrees.")] = 45.0,
+    outdoor_share: Annotated[float, typer.Option(help="Share of rendered scenes that are outdoor.")] = 0.5,
+    panorama_share: Annotated[
+        float, typer.Option(help="Share of pairs that are two crops of one panorama (needs --panoramas).")
+    ] = 0.2,
+    augment: Annotated[
+        float, typer.Option(help="Strength of noise, blur and exposure changes (0: none).")
+    ] = 1.0,
+    depth: Annotated[
+        bool, typer.Option("--depth", help="Also write z-depth maps in metres (depth/left|right/*.npy).")
+    ] = False,
+    textures: Annotated[
+        Path | None, typer.Option(help="Folder of photos to use as textures, besides the built-in ones.")
+    ] = None,
+    panoramas: Annotated[
+        Path | None, typer.Option(help="Folder of equirectangular panoramas for skies, windows and crops.")
+    ] = None,
+    preview: Annotated[
+        Path | None, typer.Option(help="Write a contact sheet of 16 random pairs to this PNG file.")
+    ] = None,
+    progress: Annotated[
+        bool | None,
+        typer.Option("--progress/--no-progress", help="Show a progress bar (default: if a terminal)."),
+    ] = None,
+) -> None:
+    """Render a synthetic stereo dataset with exact ground truth (K, R, T, gravity per camera)."""
+    try:
+        from stereogeo_cli.synth.cli_support import run_make_data
+
+        run_make_data(
+            out,
+            count=count,
+            seed=seed,
+            workers=workers,
+            size=size,
+            aspects=aspects,
+            portrait_share=portrait_share,
+            vfov=(vfov_min, vfov_max),
+            baseline=(baseline_min, baseline_max),
+            max_angle=max_angle,
+            outdoor_share=outdoor_share,
+            panorama_share=panorama_share,
+            augment=augment,
+            depth=depth,
+            textures=textures,
+            panoramas=panoramas,
+            preview=preview,
+            progress=sys.stderr.isatty() if progress is None else progress,
+        )
+    except StereoGeoError as error:
+        raise fail(error) from None
+
+
+def _internal(error: BaseException) -> typer.Exit:
+    """An unexpected failure: one line (no traceback), exit code 1."""
+    first = str(error).strip().splitlines()[0] if str(error).strip() else ""
+    typer.echo(f"error: internal error: {type(error).__name__}{': ' + first if first else ''}", err=True)
+    return typer.Exit(code=EXIT_INTERNAL)
+
+
+def _formats(value: str) -> tuple[str, ...]:
+    from stereogeo_cli.io.writers import FORMATS
+
+    names = tuple(dict.fromkeys(v.strip() for v in value.split(",") if v.strip()))
+    unknown = [n for n in names if n not in FORMATS]
+    if unknown or not names:
+        raise StereoGeoError(
+            f"unknown output format {unknown[0] if unknown else value!r}; choose from {', '.join(FORMATS)}"
+        )
+    return names
+
+
+def _check_output_folder(folder: Path) -> None:
+    """Fail before any work if the output folder cannot be made or written."""
+    import os
+
+    if folder.exists() and not folder.is_dir():
+        raise StereoGeoError(f"output folder {folder} is not a folder")
+    probe = folder
+    while not probe.exists():
+        probe = probe.parent
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise StereoGeoError(f"output folder {folder} is not writable")
+
+
+def _print_summary(result, console) -> None:
+    from rich.table import Table
+
+    report = result.report()
+    table = Table(title="stereogeo calibration", show_lines=False)
+    table.add_column("")
+    table.add_column("left", justify="right")
+    table.add_column("right", justify="right")
+
+    def cell(cam: dict, key: str, unit: str, digits: int) -> str:
+        value, sigma = cam[key], cam["sigma"].get(key)
+        if value is None:
+            return "—"
+        text = f"{value:.{digits}f}{unit}"
+        return text + (f" ± {sigma:.{digits}f}" if sigma is not None else "")
+
+    for label, key, unit, digits in (
+        ("focal", "focal_px", " px", 1), ("vFoV", "vfov_deg", "°", 2),
+        ("roll", "roll_deg", "°", 2), ("pitch", "pitch_deg", "°", 2),
+    ):  # fmt: skip
+        table.add_row(
+            label, cell(report["left"], key, unit, digits), cell(report["right"], key, unit, digits)
+        )
+    table.add_row("size", f"{report['left']['width']}×{report['left']['height']}",
+                  f"{report['right']['width']}×{report['right']['height']}")  # fmt: skip
+    console.print(table)
+    pose = report["pose"]
+    from stereogeo_cli.geometry import axis_angle_from_rotation
+
+    rotvec = np.degrees(axis_angle_from_rotation(np.array(report["R"])))
+    sigma_r = f" ± {pose['sigma_rotation_deg']:.2f}°" if pose["sigma_rotation_deg"] is not None else ""
+    console.print(
+        f"R: {pose['rotation_deg']:.2f}°{sigma_r} (rotation vector {rotvec[0]:+.2f}°, {rotvec[1]:+.2f}°, "
+        f"{rotvec[2]:+.2f}°), from {pose['source'].replace('_', ' ')}"
+    )
+    T = report["T"]
+    console.print(
+        f"T: ({T[0]:+.4f}, {T[1]:+.4f}, {T[2]:+.4f}) m, baseline {report['baseline_m']:.4f} m "
+        f"({'given' if report['scale_source'] == 'baseline' else 'learned scale'})"
+    )
+    console.print(f"matches: {report['matches']['found']} found, {report['matches']['inliers']} inliers; "
+                  f"time {report['timing_ms']['total']:.0f} ms")  # fmt: skip
+    for warning in report["warnings"]:
+        console.print(f"[yellow]warning:[/yellow] {warning}")
+
+
+@app.command()
+def calibrate(
+    left: Annotated[Path, typer.Argument(help="The left image (any format OpenCV reads).")],
+    right: Annotated[Path, typer.Argument(help="The right image.")],
+    *,
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="Folder to write the calibration files into.")
+    ] = None,
+    formats: Annotated[
+        str,
+        typer.Option("--format", help="Comma-separated output formats: opencv, ros, kalibr, colmap, json."),
+    ] = "opencv,json",
+    json_out: Annotated[
+        bool, typer.Option("--json", help="Print the JSON report on stdout, and nothing else there.")
+    ] = False,
+    preview: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write the rectified pair side by side, with rows every 32 px and the horizons, to this PNG."
+        ),
+    ] = None,
+    baseline: Annotated[
+        float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
+    ] = None,
+    focal_left: Annotated[
+        float | None, typer.Option(help="The left camera's focal length in pixels, if known.")
+    ] = None,
+    focal_right: Annotated[
+        float | None, typer.Option(help="The right camera's focal length in pixels, if known.")
+    ] = None,
+    model: Annotated[
+        Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
+    ] = None,
+    threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core).")] = 0,
+) -> None:
+    """Calibrate a stereo camera from one image pair: focal lengths, gravity (roll, pitch), R and T."""
+    try:
+        for name, value in (
+            ("--baseline", baseline),
+            ("--focal-left", focal_left),
+            ("--focal-right", focal_right),
+        ):
+            if value is not None and not (value > 0 and np.isfinite(value)):
+                raise StereoGeoError(f"{name} must be a positive number, got {value}")
+        if threads < 0:
+            raise StereoGeoError("--threads must be 0 or more")
+        names = _formats(formats)
+        if output is not None:
+            _check_output_folder(output)
+        if preview is not None:
+            _check_output_folder(preview.parent)
+        from stereogeo_cli.io import load_image, write_calibration
+        from stereogeo_cli.pipeline import Calibrator
+
+        left_image, right_image = load_image(left), load_image(right)
+        calibrator = Calibrator(model, threads=threads)
+        result = calibrator.calibrate(
+            left_image, right_image, baseline_m=baseline, focal_left=focal_left, focal_right=focal_right
+        )
+        written = write_calibration(output, result.calibration, names) if output is not None else []
+        if preview is not None:
+            from stereogeo_cli.io.preview import write_preview
+
+            written.append(write_preview(preview, left_image, right_image, result.calibration))
+    except StereoGeoError as error:
+        raise fail(error) from None
+    except (KeyboardInterrupt, typer.Exit):
+        raise
+    except Exception as error:  # noqa: BLE001 - any other failure is ours: one line, exit 1
+        raise _internal(error) from None
+    if json_out:
+        from stereogeo_cli.io.report import report_json
+
+        sys.stdout.write(report_json(result.calibration))
+        return
+    from rich.console import Console
+
+    console = Console()
+    _print_summary(result, console)
+    for path in written:
+        console.print(f"wrote {path}")
+
+
+@app.command("export-onnx")
+def export_onnx_command(
+    checkpoint: Annotated[
+        Path, typer.Argument(help="A training checkpoint (.pt) written by stereogeo train.")
+    ],
+    *,
+    output: Annotated[Path, typer.Option("--output", "-o", help="The ONNX file to write.")] = Path(
+        "stereogeo.onnx"
+    ),
+    model_version: Annotated[
+        str | None, typer.Option(help="A version name stored in the model (default: the checkpoint's).")
+    ] = None,
+) -> None:
+    """Export a checkpoint to one ONNX file (both views, any size), after checking it against torch."""
+    try:
+        from stereogeo_cli.network.export import export_onnx
+
+        result = export_onnx(checkpoint, output, model_version=model_version)
+    except StereoGeoError as error:
+        raise fail(error) from None
+    except Exception as error:  # noqa: BLE001
+        raise _internal(error) from None
+    worst = max(result["max_abs_error"].values())
+    typer.echo(f"wrote {result['path']} (largest difference from torch {worst:.2e})")
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def train(ctx: typer.Context) -> None:
+    """Train the network (resumable; run under torchrun for several processes). --help lists the settings."""
+    from stereogeo_cli.network.train import main as train_main
+
+    train_main(list(ctx.args))
 
 
 def main() -> None:

@@ -14,7 +14,7 @@ import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed
 from stereogeo_cli.fuse import RelativePose, fuse_relative_pose, match_features
-from stereogeo_cli.geometry import intrinsic_matrix
+from stereogeo_cli.geometry import intrinsic_matrix, rotation_angle
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.images import check_pair
 from stereogeo_cli.network.runtime import FieldNetwork, ViewFields
@@ -48,27 +48,12 @@ class CalibrationResult:
     warnings: list[str] = field(default_factory=list)
 
     def report(self) -> dict:
-        """The JSON report (DESIGN §3) with the pose's provenance and any warnings added."""
-        report = self.calibration.to_report()
-        report["pose"] = {
-            "source": self.pose.source,
-            "sigma_rotation_deg": _finite(self.pose.sigma_rotation_deg),
-            "sigma_direction_deg": _finite(self.pose.sigma_direction_deg),
-            "gravity_error_deg": self.pose.gravity_error_deg,
-            "rotation_deg": float(np.degrees(np.linalg.norm(_rotvec(self.calibration.R)))),
-        }
-        report["warnings"] = list(self.warnings)
-        return report
+        """The JSON report (DESIGN §3), with the pose's provenance and any warnings."""
+        return self.calibration.to_report()
 
 
 def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
-
-
-def _rotvec(R: np.ndarray) -> np.ndarray:
-    from stereogeo_cli.geometry import axis_angle_from_rotation
-
-    return axis_angle_from_rotation(R)
 
 
 class Calibrator:
@@ -153,7 +138,7 @@ class Calibrator:
             matches, K_left, K_right,
             gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
             gravity_sigma_rad=max(gravity_sigma, 1e-4) if math.isfinite(gravity_sigma) else None,
-            prior_R=net.rotation(), prior_t=net.translation, conf=self.conf["fuse"],
+            prior_R=net.rotation, prior_t=net.translation, conf=self.conf["fuse"],
         )  # fmt: skip
         timing["fusion"] = (time.perf_counter() - tick) * 1e3
         warnings.extend(pose.notes)
@@ -176,5 +161,15 @@ class Calibrator:
             scale_source=scale_source, matches_found=pose.matches_found, matches_inliers=pose.inliers,
             timing_ms=timing, model_file=self.model_path.name, model_sha256=self.network.model_sha256,
             notes="; ".join(warnings),
+            extra_report={
+                "pose": {
+                    "source": pose.source,
+                    "sigma_rotation_deg": _finite(pose.sigma_rotation_deg),
+                    "sigma_direction_deg": _finite(pose.sigma_direction_deg),
+                    "gravity_error_deg": pose.gravity_error_deg,
+                    "rotation_deg": float(np.degrees(rotation_angle(pose.R))),
+                },
+                "warnings": list(warnings),
+            },
         )  # fmt: skip
         return CalibrationResult(calibration, fit_left, fit_right, pose, warnings)

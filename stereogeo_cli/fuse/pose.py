@@ -145,21 +145,35 @@ def fuse_relative_pose(
             notes=notes,
         )  # fmt: skip
 
-    R, t, inlier_mask = initial
+    R0, t0, mask0 = initial
     priors = _Priors(
         gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad, prior_R, prior_t,
         np.radians(conf["prior_rotation_sigma_deg"]), np.radians(conf["prior_direction_sigma_deg"]),
     )  # fmt: skip
-    # Two rounds: refine on the MAGSAC inliers, then re-select the inliers among all matches with the
-    # refined model (MAGSAC's set misses good matches and keeps a few bad ones) and refine again.
-    for _ in range(2):
-        errors = sampson_errors(fundamental_matrix(K_left, K_right, R, t), matches.left, matches.right)
-        noise = max(1.4826 * float(np.median(np.abs(errors[inlier_mask]))), conf["min_noise_px"])
-        R, t, H = _refine_pose(
-            R, t, matches.left[inlier_mask], matches.right[inlier_mask], K_left, K_right, noise, priors, conf
-        )
-        errors = sampson_errors(fundamental_matrix(K_left, K_right, R, t), matches.left, matches.right)
-        inlier_mask = np.abs(errors) < max(3.0 * noise, conf["ransac_threshold_px"])
+    errors0 = sampson_errors(fundamental_matrix(K_left, K_right, R0, t0), matches.left, matches.right)
+    noise = max(1.4826 * float(np.median(np.abs(errors0[mask0]))), conf["min_noise_px"])
+    # Short baselines leave a valley of near-equal epipolar error between rotation and translation:
+    # refine from the essential matrix and from the pose head (made consistent with gravity), keep the best.
+    starts = [(R0, t0)]
+    if prior_R is not None and prior_t is not None:
+        R_p = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
+        starts.append((R_p, np.asarray(prior_t, dtype=float) / np.linalg.norm(prior_t)))
+    best = None
+    for R, t in starts:
+        mask = mask0
+        # two rounds: refine on the inliers, re-select the inliers among all matches, refine again
+        for _ in range(2):
+            R, t, H = _refine_pose(
+                R, t, matches.left[mask], matches.right[mask], K_left, K_right, noise, priors, conf
+            )
+            errors = sampson_errors(fundamental_matrix(K_left, K_right, R, t), matches.left, matches.right)
+            mask = np.abs(errors) < max(3.0 * noise, conf["ransac_threshold_px"])
+        if _in_front_share(R, t, matches.left[mask], matches.right[mask], K_left, K_right) < 0.5:
+            t = -t  # the epipolar error cannot tell t from -t; the points must lie in front of the cameras
+        score = float(np.sum(np.minimum((errors / noise) ** 2, 9.0)) + np.sum(priors.residuals(R, t) ** 2))
+        if best is None or score < best[0]:
+            best = (score, R, t, H, mask)
+    _, R, t, H, inlier_mask = best
     cov = np.linalg.inv(H)
     return RelativePose(
         R=R, t_direction=t, source="matches", matches_found=found, inliers=int(inlier_mask.sum()),
@@ -168,6 +182,18 @@ def fuse_relative_pose(
         gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
         notes=notes,
     )  # fmt: skip
+
+
+def _in_front_share(R, t, left, right, K_left, K_right) -> float:
+    """Share of matches that triangulate in front of both cameras."""
+    if len(left) == 0:
+        return 1.0
+    P_left = np.hstack([np.eye(3), np.zeros((3, 1))])
+    P_right = np.hstack([R, t.reshape(3, 1)])
+    X = cv2.triangulatePoints(P_left, P_right, _normalise(left, K_left).T, _normalise(right, K_right).T)
+    X = X[:3] / X[3]
+    depth_left, depth_right = X[2], (R @ X + t.reshape(3, 1))[2]
+    return float(np.mean((depth_left > 0) & (depth_right > 0)))
 
 
 @dataclass
@@ -180,20 +206,25 @@ class _Priors:
     rotation_sigma: float
     direction_sigma: float
 
+    def residuals(self, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """The prior terms in units of their sigmas: gravity coupling, pose-head rotation and direction."""
+        parts = [np.zeros(0)]
+        if self.gravity_left is not None:
+            parts.append((R @ self.gravity_left - self.gravity_right) / self.gravity_sigma)
+        if self.R is not None:
+            parts.append(_rotation_residual(R, self.R) / self.rotation_sigma)
+        if self.t is not None:
+            parts.append((t - self.t / np.linalg.norm(self.t)) / self.direction_sigma)
+        return np.concatenate(parts)
+
 
 def _refine_pose(R, t, left, right, K_left, K_right, noise_px, priors: _Priors, conf):
     """LM on (rotation update [3], direction tangent [2]): robust Sampson errors in units of the match
     noise, plus the soft gravity coupling and the pose-head prior in units of their sigmas."""
 
     def residuals(R_, t_):
-        parts = [sampson_errors(fundamental_matrix(K_left, K_right, R_, t_), left, right) / noise_px]
-        if priors.gravity_left is not None:
-            parts.append((R_ @ priors.gravity_left - priors.gravity_right) / priors.gravity_sigma)
-        if priors.R is not None:
-            parts.append(_rotation_residual(R_, priors.R) / priors.rotation_sigma)
-        if priors.t is not None:
-            parts.append((t_ - priors.t / np.linalg.norm(priors.t)) / priors.direction_sigma)
-        return np.concatenate(parts)
+        data = sampson_errors(fundamental_matrix(K_left, K_right, R_, t_), left, right) / noise_px
+        return np.concatenate([data, priors.residuals(R_, t_)])
 
     def moved(R_, t_, delta):
         return rotation_from_axis_angle(delta[:3]) @ R_, retract_on_sphere(t_, delta[3:], tangent_basis(t_))

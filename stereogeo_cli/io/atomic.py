@@ -9,8 +9,8 @@ from pathlib import Path
 from stereogeo_cli.errors import StereoGeoError
 
 
-def write_files_atomically(out_dir: str | os.PathLike, files: dict[str, str]) -> list[Path]:
-    """Write ``{file name: text}`` into ``out_dir`` (created if needed); return the paths in order.
+def write_files_atomically(out_dir: str | os.PathLike, files: dict[str, str | bytes]) -> list[Path]:
+    """Write ``{file name: text or bytes}`` into ``out_dir`` (created if needed); return the paths in order.
 
     Every file goes to a temporary file in ``out_dir`` first, is flushed and fsynced; only when all of them
     are on disk are they renamed over their targets with ``os.replace``. An interrupted or failing run
@@ -37,7 +37,10 @@ def write_files_atomically(out_dir: str | os.PathLike, files: dict[str, str]) ->
             target = folder / name
             fd, tmp_name = tempfile.mkstemp(dir=folder, prefix=f".{name}.", suffix=".tmp")
             pending.append((Path(tmp_name), target))
-            with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
+            binary = isinstance(text, bytes)
+            with os.fdopen(
+                fd, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8", "newline": "\n"})
+            ) as f:
                 if hasattr(os, "fchmod"):  # mkstemp makes 0600; give the file the usual permissions
                     os.fchmod(f.fileno(), 0o666 & ~umask)
                 f.write(text)

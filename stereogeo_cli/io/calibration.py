@@ -16,6 +16,18 @@ from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.geometry import roll_pitch_from_gravity, vfov_from_focal
 
 SIGMA_KEYS = ("focal_px", "vfov_deg", "roll_deg", "pitch_deg")
+_REPORT_KEYS = (
+    "left",
+    "right",
+    "R",
+    "T",
+    "baseline_m",
+    "scale_source",
+    "matches",
+    "timing_ms",
+    "model",
+    "notes",
+)
 _DIST_LENGTHS = (0, 4, 5, 8)  # OpenCV models we write: none, k1 k2 p1 p2 [k3 [k4 k5 k6]]
 
 
@@ -53,6 +65,7 @@ class StereoCalibration:
     model_file: str | None = None
     model_sha256: str | None = None
     notes: str = ""
+    extra_report: dict[str, Any] = field(default_factory=dict)  # more report keys (never overriding one)
 
     def __post_init__(self) -> None:
         def put(name: str, value: Any) -> None:
@@ -114,7 +127,7 @@ class StereoCalibration:
             "timing_ms": {"total": None, **{k: _finite_or_none(v) for k, v in self.timing_ms.items()}},
             "model": {"file": self.model_file, "sha256": self.model_sha256},
             "notes": self.notes,
-        }
+        } | {k: v for k, v in self.extra_report.items() if k not in _REPORT_KEYS}
 
     @classmethod
     def from_report(cls, report: dict[str, Any]) -> StereoCalibration:

@@ -43,7 +43,11 @@ OUTPUT_SHAPES: dict[str, tuple[str | int, ...]] = {
 
 
 def network_metadata(
-    conf: dict[str, Any], model_version: str, training_data: str, step: int = 0
+    conf: dict[str, Any],
+    model_version: str,
+    training_data: str,
+    step: int = 0,
+    short_side: int = INPUT_SHORT_SIDE,
 ) -> dict[str, str]:
     """The metadata properties written into the ONNX model (all values are strings)."""
     s = OUTPUT_STRIDE
@@ -53,11 +57,11 @@ def network_metadata(
         "training_data": training_data,
         "training_step": str(int(step)),
         "input_size_rule": (
-            f"resize so the short side is {INPUT_SHORT_SIDE} px (area filter when shrinking, linear when "
+            f"resize so the short side is {short_side} px (area filter when shrinking, linear when "
             f"enlarging), then centre-crop each side to a multiple of {INPUT_MULTIPLE} "
             "(stereogeo_cli.geometry.resize_crop_for_network); the two views are sized independently"
         ),
-        "input_short_side": str(INPUT_SHORT_SIDE),
+        "input_short_side": str(int(short_side)),
         "input_multiple": str(INPUT_MULTIPLE),
         "input_format": "float32 [B x 3 x H x W], RGB, values in [0, 1]",
         "normalization": "(x * 255 - 127) / 128, applied inside the graph",
@@ -160,6 +164,7 @@ def export_onnx(
         model_version or str(checkpoint.get("model_version", "untrained")),
         training_data or str(checkpoint.get("training_data", "none (untrained)")),
         int(checkpoint.get("step", 0)),
+        int(checkpoint.get("input_short_side", INPUT_SHORT_SIDE)),  # the size the model was trained at
     )
     size_left, size_right = parity_sizes[0], parity_sizes[-1]
     generator = torch.Generator().manual_seed(0)  # leaves the caller's (e.g. training's) RNG untouched
