@@ -72,6 +72,28 @@ def _distributed() -> tuple[int, int]:
     return 0, 1
 
 
+def _sync_buffers(model: torch.nn.Module, world: int) -> None:
+    """Average the batch-norm statistics over the processes (each saw its own batches), so that every
+    replica holds the same model; counters are taken from rank 0."""
+    if world < 2:
+        return
+    for buffer in model.buffers():
+        if buffer.is_floating_point():
+            dist.all_reduce(buffer, op=dist.ReduceOp.SUM)
+            buffer.div_(world)
+        else:
+            dist.broadcast(buffer, 0)
+
+
+def _agree(flag: bool, world: int) -> bool:
+    """Rank 0's decision, for every rank (a decision that leads to a collective must be shared)."""
+    if world < 2:
+        return flag
+    value = torch.tensor([int(flag)])
+    dist.broadcast(value, 0)
+    return bool(value.item())
+
+
 def _to_float(losses: dict) -> dict[str, float]:
     return {k: float(v.detach()) for k, v in losses.items()}
 
@@ -259,7 +281,9 @@ def train(conf: dict) -> dict:
             if score < best:
                 best = score
                 save(out / "best.pt", metrics)
-        if time.monotonic() - last_save > 60 * conf["checkpoint_minutes"] or step == conf["steps"]:
+        due = time.monotonic() - last_save > 60 * conf["checkpoint_minutes"] or step == conf["steps"]
+        if _agree(due, world):
+            _sync_buffers(model, world)
             save(latest, metrics)
             last_save = time.monotonic()
     if conf.get("dump_replica"):

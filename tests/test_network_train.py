@@ -1,0 +1,120 @@
+"""Training: losses, resumable checkpoints, and two processes under torchrun holding identical replicas."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from stereogeo_cli.network.data import SizedBatches, cover_crop, training_sample  # noqa: E402
+from stereogeo_cli.network.losses import ground_truth_fields  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("data") / "train"
+    from stereogeo_cli.synth.config import SynthConfig
+    from stereogeo_cli.synth.dataset import make_dataset
+
+    make_dataset(folder, 8, 5, SynthConfig(short_side=96), workers=1, progress=False)
+    return folder
+
+
+def _config(tmp_path: Path, data: Path, **changes) -> Path:
+    conf = {
+        "data": [str(data)], "out": str(tmp_path / "run"), "steps": 4, "batch_size": 2,
+        "sizes": [[128, 96], [96, 128]], "warmup_steps": 1, "refiner_start": 2, "workers": 0,
+        "log_every": 1, "threads": 1, "val_every": 1000, **changes,
+    }  # fmt: skip
+    path = tmp_path / "train.json"
+    path.write_text(json.dumps(conf))
+    return path
+
+
+def test_training_sample_ground_truth_is_exact():
+    """A cut image's latitude ground truth equals the latitude of the same ray in the original camera."""
+    from stereogeo_cli.geometry import gravity_from_roll_pitch, intrinsic_matrix, latitude_at
+
+    g = gravity_from_roll_pitch(0.2, -0.3)
+    K = intrinsic_matrix(300.0, 640, 480)
+    cam = {"K": K.tolist(), "gravity_up": g.tolist()}
+    calib = {"left": cam, "right": cam, "R": np.eye(3).tolist(), "T": [-0.1, 0, 0]}
+    image = np.zeros((480, 640, 3), np.uint8)
+    sample = training_sample(image, image, calib, (192, 256))
+    assert sample["left"].shape == (3, 256, 192)
+    up, lat = ground_truth_fields(sample["gravity"][:1], sample["focal"][:1], 192, 256)
+    rc = cover_crop(640, 480, 192, 256)
+    ys, xs = np.mgrid[0:64, 0:48]
+    cut = np.stack([4 * xs + 1.5, 4 * ys + 1.5], -1)
+    orig = rc.points_to_input(cut)
+    expected = latitude_at(g, 300.0, orig[..., 0], orig[..., 1], 320, 240)
+    # the only difference is the half-pixel principal-point convention
+    np.testing.assert_allclose(lat[0].numpy(), expected, atol=1.0 / sample["focal"][0].item())
+    assert bool(sample["has_translation"]) and bool(sample["has_pose"])
+
+
+def test_batches_are_split_across_ranks_and_resume_where_they_stopped():
+    a = SizedBatches(100, 4, 3, seed=1, rank=0, world=2)
+    b = SizedBatches(100, 4, 3, seed=1, rank=1, world=2)
+    ia, ib = iter(a), iter(b)
+    first = [next(ia) for _ in range(30)]
+    other = [next(ib) for _ in range(12)]
+    assert not {i for batch in first[:12] for i, _ in batch} & {i for batch in other for i, _ in batch}
+    assert all(len({s for _, s in batch}) == 1 for batch in first)  # one size per batch
+    resumed = iter(SizedBatches(100, 4, 3, seed=1, rank=0, world=2, start_batch=17))
+    assert [next(resumed) for _ in range(13)] == first[17:]
+
+
+def _run_train(args, env=None):
+    return subprocess.run(
+        [sys.executable, "-m", "stereogeo_cli.network.train", *args],
+        capture_output=True, text=True, env={**os.environ, **(env or {})}, timeout=600,
+    )  # fmt: skip
+
+
+def test_train_checkpoints_and_resumes_to_the_same_weights(tmp_path, tiny_dataset):
+    config = _config(tmp_path, tiny_dataset)
+    straight = _run_train(["--config", str(config), "--out", str(tmp_path / "straight")])
+    assert straight.returncode == 0, straight.stderr
+    first = _run_train(["--config", str(config), "--out", str(tmp_path / "split"), "--steps", "2"])
+    assert first.returncode == 0, first.stderr
+    second = _run_train(["--config", str(config), "--out", str(tmp_path / "split"), "--resume"])
+    assert second.returncode == 0, second.stderr
+    assert "[resume] step=2" in second.stderr
+    a = torch.load(tmp_path / "straight" / "latest.pt", weights_only=True)
+    b = torch.load(tmp_path / "split" / "latest.pt", weights_only=True)
+    assert a["step"] == b["step"] == 4
+    for key, value in a["model"].items():
+        torch.testing.assert_close(b["model"][key], value, atol=1e-5, rtol=1e-4, msg=key)
+    assert "optimizer" in a and a["input_short_side"] == 224
+    log = [json.loads(line) for line in (tmp_path / "straight" / "log.jsonl").read_text().splitlines()]
+    assert any(r["event"] == "train" and "camera" in r for r in log)  # the refiner loss ran
+
+
+def test_two_processes_under_torchrun_hold_identical_replicas(tmp_path, tiny_dataset):
+    config = _config(tmp_path, tiny_dataset, steps=2, batch_size=1)
+    replicas = tmp_path / "replicas"
+    replicas.mkdir()
+    result = subprocess.run(
+        [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", "29533",
+         "-m", "stereogeo_cli.network.train", "--config", str(config), "--dump-replica", str(replicas)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-3000:]
+    a = torch.load(replicas / "rank0.pt", weights_only=True)
+    b = torch.load(replicas / "rank1.pt", weights_only=True)
+    for key, value in a.items():
+        assert torch.equal(value, b[key]), key
+    start = json.loads((tmp_path / "run" / "log.jsonl").read_text().splitlines()[0])
+    assert start["world"] == 2
+
+
+def test_unknown_data_folder_is_a_clear_error(tmp_path):
+    result = _run_train(["--data", str(tmp_path / "missing"), "--out", str(tmp_path / "o"), "--steps", "1"])
+    assert result.returncode == 2
+    assert "is not a dataset folder" in result.stderr and "Traceback" not in result.stderr
