@@ -10,7 +10,7 @@ import numpy as np
 import typer
 
 from stereogeo_cli import __version__
-from stereogeo_cli.errors import EXIT_INTERNAL, StereoGeoError
+from stereogeo_cli.errors import EXIT_INTERNAL, EXIT_PARTIAL_BATCH, StereoGeoError
 
 app = typer.Typer(
     name="stereogeo",
@@ -276,6 +276,87 @@ def calibrate(
         console.print(f"wrote {path}")
 
 
+@app.command("batch-calibrate")
+def batch_calibrate(
+    folder: Annotated[
+        Path,
+        typer.Argument(
+            help="Folder of stereo pairs: left/ + right/, cam0/ + cam1/, or *_left/*_right, *_L/*_R files."
+        ),
+    ],
+    *,
+    output: Annotated[
+        Path,
+        typer.Option(
+            "--output", "-o", help="Folder for the results: <pair>/ per pair, summary.csv and summary.json."
+        ),
+    ],
+    formats: Annotated[
+        str,
+        typer.Option("--format", help="Comma-separated output formats: opencv, ros, kalibr, colmap, json."),
+    ] = "opencv,json",
+    baseline: Annotated[
+        float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
+    ] = None,
+    model: Annotated[
+        Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
+    ] = None,
+    threads: Annotated[
+        int, typer.Option(help="Threads for the network in all (0: one per core), shared by the workers.")
+    ] = 0,
+    workers: Annotated[int, typer.Option(help="Pairs calibrated in parallel, one process each.")] = 1,
+    same_rig: Annotated[
+        bool,
+        typer.Option(
+            "--same-rig", help="All pairs come from one rig: also write one joint calibration to OUT/rig/."
+        ),
+    ] = False,
+    shard: Annotated[
+        str | None,
+        typer.Option(help="Only shard i of n (1-based, e.g. 2/8): every n-th pair, for cluster job arrays."),
+    ] = None,
+    json_out: Annotated[
+        bool, typer.Option("--json", help="Print the summary as JSON on stdout, and nothing else there.")
+    ] = False,
+) -> None:
+    """Calibrate every stereo pair of a folder with one network session; exit code 4 if any pair failed."""
+    try:
+        if baseline is not None and not (baseline > 0 and np.isfinite(baseline)):
+            raise StereoGeoError(f"--baseline must be a positive number, got {baseline}")
+        if threads < 0 or workers < 1:
+            raise StereoGeoError("--threads must be 0 or more and --workers 1 or more")
+        from stereogeo_cli.batch import parse_shard, run_batch
+
+        names, shard_spec = _formats(formats), parse_shard(shard) if shard is not None else None
+        _check_output_folder(output)
+        summary = run_batch(
+            folder, output, formats=names, baseline_m=baseline, model=model, threads=threads,
+            workers=workers, same_rig=same_rig, shard=shard_spec, progress=sys.stderr.isatty(),
+        )  # fmt: skip
+    except StereoGeoError as error:
+        raise fail(error) from None
+    except (KeyboardInterrupt, typer.Exit):
+        raise
+    except Exception as error:  # noqa: BLE001
+        raise _internal(error) from None
+    if json_out:
+        sys.stdout.write(summary.json_text)
+    else:
+        ok = len(summary.outcomes) - summary.failed
+        typer.echo(f"{len(summary.outcomes)} pairs: {ok} ok, {summary.failed} failed; results in {output}")
+        if summary.rig is not None:
+            rig = summary.rig.to_report()
+            typer.echo(
+                f"rig ({output / 'rig'}): focal {rig['left']['focal_px']:.1f} / "
+                f"{rig['right']['focal_px']:.1f} px, R {rig['pose']['rotation_deg']:.2f}°, "
+                f"baseline {rig['baseline_m']:.4f} m"
+            )
+    if summary.rig_error is not None:
+        raise fail(summary.rig_error)
+    if summary.failed:
+        raise typer.Exit(code=EXIT_PARTIAL_BATCH)
+
+
 @app.command("export-onnx")
 def export_onnx_command(
     checkpoint: Annotated[
@@ -308,6 +389,87 @@ def train(ctx: typer.Context) -> None:
     from stereogeo_cli.network.train import main as train_main
 
     train_main(list(ctx.args))
+
+
+@app.command()
+def evaluate(
+    dataset: Annotated[
+        Path, typer.Argument(help="A dataset folder: left/, right/ and calib.jsonl with ground truth.")
+    ],
+    *,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON on stdout.")] = False,
+    baselines: Annotated[
+        bool,
+        typer.Option(
+            "--baselines", help="Also run ORB and SIFT + essential matrix with the true intrinsics."
+        ),
+    ] = False,
+    model: Annotated[Path | None, typer.Option(help="The ONNX model (default: the shipped one).")] = None,
+    threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core).")] = 0,
+) -> None:
+    """Calibrate every pair of a dataset with ground truth and report the papers' accuracy metrics."""
+    import json
+
+    try:
+        from rich.progress import Progress
+
+        from stereogeo_cli.evaluate import evaluate_dataset, read_dataset
+        from stereogeo_cli.pipeline import Calibrator
+
+        total = len(read_dataset(dataset))
+        calibrator = Calibrator(model, threads=threads)
+        with Progress(transient=True, disable=not sys.stderr.isatty(), console=_stderr_console()) as bar:
+            task = bar.add_task("evaluating", total=total)
+            results = evaluate_dataset(
+                dataset, calibrator, baselines=baselines, progress=lambda: bar.advance(task)
+            )
+    except StereoGeoError as error:
+        raise fail(error) from None
+    except Exception as error:  # noqa: BLE001
+        raise _internal(error) from None
+    if json_out:
+        sys.stdout.write(json.dumps(results, indent=2, allow_nan=False, default=float) + "\n")
+        return
+    _print_evaluation(results)
+
+
+def _stderr_console():
+    from rich.console import Console
+
+    return Console(stderr=True)
+
+
+def _print_evaluation(results: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    metrics = results["metrics"]
+    table = Table(
+        title=f"{results['dataset']}: {metrics['pairs']['evaluated']} of {metrics['pairs']['total']} pairs"
+    )
+    for column in ("metric", "median", "mean", "AUC@1°", "AUC@5°", "AUC@10°"):
+        table.add_column(column, justify="right" if column != "metric" else "left")
+    for key, label in (("roll_deg", "roll (°)"), ("pitch_deg", "pitch (°)"), ("vfov_deg", "vFoV (°)")):
+        if key in metrics:
+            m = metrics[key]
+            table.add_row(label, f"{m['median']:.2f}", f"{m['mean']:.2f}",
+                          *(f"{100 * m[f'auc@{t}']:.1f}%" for t in (1, 5, 10)))  # fmt: skip
+    rows = (("focal_rel", "focal (relative)"), ("rotation_error_deg", "rotation (°)"),
+            ("direction_error_deg", "t direction (°)"), ("translation_error_m", "T (m)"),
+            ("orb+essential_rotation_error_deg", "ORB + E, true K: rotation (°)"),
+            ("sift+essential_rotation_error_deg", "SIFT + E, true K: rotation (°)"),
+            ("orb+essential_direction_error_deg", "ORB + E, true K: t direction (°)"),
+            ("sift+essential_direction_error_deg", "SIFT + E, true K: t direction (°)"))  # fmt: skip
+    for key, label in rows:
+        if key in metrics:
+            m = metrics[key]
+            table.add_row(label, f"{m['median']:.3f}", f"{m['mean']:.3f}", "", "", "")
+    console.print(table)
+    for reason in results["skipped"]:
+        console.print(f"skipped: {reason}")
+    for failure in results["failed"]:
+        console.print(f"[yellow]failed:[/yellow] {failure['id']}: {failure['error']}")
 
 
 def main() -> None:

@@ -1,0 +1,173 @@
+"""``stereogeo evaluate``: the calibrate pipeline on a dataset with ground truth, and the paper's metrics.
+
+Dataset layout (DESIGN §3): ``left/<id>.png``, ``right/<id>.png``, ``calib.jsonl``. Per camera: roll,
+pitch and vFoV errors (degrees) and the relative focal error; per pair: the relative rotation error
+(degrees), the translation error (metres) and the translation-direction error (degrees). A metric whose
+ground truth is missing (e.g. no gravity) is skipped and said so. Optional baselines use the ground-truth
+intrinsics: ORB (5000 features) or SIFT matches, essential matrix and recoverPose.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
+from stereogeo_cli.fuse import Matches, essential_pose, match_features
+from stereogeo_cli.geometry import roll_pitch_from_gravity, rotation_error, vfov_from_focal
+from stereogeo_cli.io import load_image
+from stereogeo_cli.metrics import summarize
+
+
+def read_dataset(folder: str | Path) -> list[dict]:
+    """The records of ``calib.jsonl`` (one per pair); a folder that is not a dataset is a StereoGeoError."""
+    folder = Path(folder)
+    path = folder / "calib.jsonl"
+    if not path.is_file():
+        raise StereoGeoError(f"{folder} is not a dataset folder: {path} is missing")
+    records = []
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        if line.strip():
+            try:
+                records.append(json.loads(line))
+            except json.JSONDecodeError:
+                raise StereoGeoError(f"{path}:{number} is not valid JSON") from None
+    if not records:
+        raise StereoGeoError(f"{path} lists no pairs")
+    return records
+
+
+def _direction_error_deg(a: np.ndarray, b: np.ndarray) -> float:
+    cos = float(np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b)))
+    return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
+
+
+def orb_matches(left: np.ndarray, right: np.ndarray, features: int = 5000) -> Matches:
+    """ORB matches (Hamming, cross-checked), the paper's baseline."""
+    orb = cv2.ORB_create(nfeatures=features)
+    kl, dl = orb.detectAndCompute(cv2.cvtColor(left, cv2.COLOR_RGB2GRAY), None)
+    kr, dr = orb.detectAndCompute(cv2.cvtColor(right, cv2.COLOR_RGB2GRAY), None)
+    if dl is None or dr is None:
+        return Matches(np.zeros((0, 2)), np.zeros((0, 2)))
+    pairs = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(dl, dr)
+    return Matches(
+        np.array([kl[m.queryIdx].pt for m in pairs]).reshape(-1, 2),
+        np.array([kr[m.trainIdx].pt for m in pairs]).reshape(-1, 2),
+    )
+
+
+def _undistort(points: np.ndarray, cam: dict) -> np.ndarray:
+    """Pixel points [N x 2] of a camera with OpenCV distortion ``dist`` → undistorted pixels (same K)."""
+    if not cam.get("dist") or len(points) == 0:
+        return points
+    K, D = np.asarray(cam["K"], dtype=float), np.asarray(cam["dist"], dtype=float)
+    return cv2.undistortPoints(points.reshape(-1, 1, 2), K, D, P=K).reshape(-1, 2)
+
+
+def _baseline_pose(left, right, record, matcher: Callable) -> tuple[float, float] | None:
+    """(rotation error, direction error) in degrees of matches + essential matrix with the GT intrinsics."""
+    m = matcher(left, right)
+    if len(m) == 0:
+        return None
+    lk, rk = record["left"], record["right"]
+    undistorted = Matches(_undistort(m.left, lk), _undistort(m.right, rk))
+    pose = essential_pose(undistorted, np.asarray(lk["K"], dtype=float), np.asarray(rk["K"], dtype=float))
+    if pose is None:
+        return None
+    R, t, _ = pose
+    return (
+        math.degrees(rotation_error(R, np.asarray(record["R"]))),
+        _direction_error_deg(t, np.asarray(record["T"], dtype=float)),
+    )
+
+
+BASELINES = {
+    "orb+essential": orb_matches,
+    "sift+essential": lambda left, right: match_features(left, right),
+}
+
+
+def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False, progress=None) -> dict:
+    """Run ``calibrator`` (a :class:`stereogeo_cli.pipeline.Calibrator`) on every pair of a dataset.
+
+    Returns ``{"pairs": [...per-pair errors...], "metrics": {name: summary}, "skipped": [reasons],
+    "failed": [...]}``; with ``baselines``, ``metrics`` also holds each baseline's pose errors.
+    """
+    folder = Path(folder)
+    records = read_dataset(folder)
+    per_pair, failed = [], []
+    for record in records:
+        name = record["id"]
+        try:
+            left = load_image(folder / "left" / f"{name}.png")
+            right = load_image(folder / "right" / f"{name}.png")
+            result = calibrator.calibrate(left, right)
+        except (StereoGeoError, CalibrationFailed) as error:
+            failed.append({"id": name, "error": str(error)})
+            if progress:
+                progress()
+            continue
+        row: dict = {"id": name}
+        for view, fit in (("left", result.left), ("right", result.right)):
+            cam = record[view]
+            K = np.asarray(cam["K"], dtype=float)
+            vfov = math.degrees(float(vfov_from_focal(K[1, 1], cam["height"])))
+            row[f"{view}_vfov_error_deg"] = abs(fit.vfov_deg - vfov)
+            row[f"{view}_focal_error_rel"] = abs(fit.focal_px / (0.5 * (K[0, 0] + K[1, 1])) - 1)
+            if cam.get("gravity_up") is not None:
+                roll, pitch = (
+                    math.degrees(float(a)) for a in roll_pitch_from_gravity(np.asarray(cam["gravity_up"]))
+                )
+                row[f"{view}_roll_error_deg"] = abs((fit.roll_deg - roll + 180) % 360 - 180)
+                row[f"{view}_pitch_error_deg"] = abs(fit.pitch_deg - pitch)
+        if record.get("R") is not None:
+            c = result.calibration
+            row["rotation_error_deg"] = math.degrees(rotation_error(c.R, np.asarray(record["R"])))
+            T = np.asarray(record["T"], dtype=float)
+            if np.linalg.norm(T) > 1e-9:
+                row["translation_error_m"] = float(np.linalg.norm(c.T - T))
+                row["direction_error_deg"] = _direction_error_deg(c.T, T)
+            row["pose_source"] = result.pose.source
+            if baselines:
+                for label, matcher in BASELINES.items():
+                    errors = _baseline_pose(left, right, record, matcher)
+                    row[f"{label}_rotation_error_deg"] = errors[0] if errors else None
+                    row[f"{label}_direction_error_deg"] = errors[1] if errors else None
+        per_pair.append(row)
+        if progress:
+            progress()
+    return {"dataset": str(folder), "pairs": per_pair, "failed": failed, **_summaries(per_pair, len(records))}
+
+
+def _summaries(rows: list[dict], total: int) -> dict:
+    metrics, skipped = {}, []
+
+    def column(key):
+        return [r[key] for r in rows if r.get(key) is not None]
+
+    for name in ("roll", "pitch", "vfov"):
+        values = column(f"left_{name}_error_deg") + column(f"right_{name}_error_deg")
+        if values:
+            metrics[f"{name}_deg"] = summarize(np.array(values))
+        else:
+            skipped.append(f"{name}: no ground truth in this dataset")
+    focal = column("left_focal_error_rel") + column("right_focal_error_rel")
+    if focal:
+        metrics["focal_rel"] = {"median": float(np.median(focal)), "mean": float(np.mean(focal))}
+    for key in ("rotation_error_deg", "direction_error_deg", "translation_error_m") + tuple(
+        f"{b}_{k}" for b in BASELINES for k in ("rotation_error_deg", "direction_error_deg")
+    ):
+        values = column(key)
+        if values:
+            v = np.array(values)
+            metrics[key] = {"median": float(np.median(v)), "mean": float(np.mean(v)), "std": float(np.std(v)),
+                            "count": len(v)}  # fmt: skip
+    if not any(r.get("rotation_error_deg") is not None for r in rows):
+        skipped.append("relative pose: no ground truth R, T in this dataset")
+    metrics["pairs"] = {"evaluated": len(rows), "total": total}
+    return {"metrics": metrics, "skipped": skipped}
