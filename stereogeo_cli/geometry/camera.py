@@ -69,10 +69,11 @@ def resize_crop_for_network(width: int, height: int, short_side: int = 320, mult
     """
     if width < 1 or height < 1:
         raise ValueError(f"image size must be positive, got {width}x{height}")
+    if short_side < multiple:
+        raise ValueError(f"the short side ({short_side}) must be at least the multiple ({multiple})")
     scale = short_side / min(width, height)
-    rw, rh = max(1, round(width * scale)), max(1, round(height * scale))
-    ow, oh = max(multiple, rw // multiple * multiple), max(multiple, rh // multiple * multiple)
-    ow, oh = min(ow, rw) if rw >= multiple else ow, min(oh, rh) if rh >= multiple else oh
+    rw, rh = round(width * scale), round(height * scale)  # both ≥ short_side ≥ multiple
+    ow, oh = rw // multiple * multiple, rh // multiple * multiple
     crop = ((rw - ow) // 2, (rh - oh) // 2)
     return ResizeCrop((width, height), scale, (rw, rh), crop, (ow, oh))
 

@@ -185,6 +185,7 @@ class _Log:
     def __init__(self, out: Path, active: bool):
         self.active = active
         self.path = out / "log.jsonl"
+        self.silent: set[str] = set()  # events written to the log file only (a progress bar shows them)
 
     def __call__(self, event: str, **values) -> None:
         if not self.active:
@@ -192,6 +193,8 @@ class _Log:
         record = {"event": event, "time": time.time(), **values}
         with open(self.path, "a") as f:
             f.write(json.dumps(record) + "\n")
+        if event in self.silent:
+            return
         shown = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items())
         print(f"[{event}] {shown}", file=sys.stderr, flush=True)
 
@@ -252,40 +255,53 @@ def train(conf: dict) -> dict:
         world=world,
         batch_size=conf["batch_size"],
     )
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    interactive = rank == 0 and sys.stderr.isatty()
+    if interactive:
+        log.silent.add("train")
+    columns = (
+        TextColumn("step {task.completed}/{task.total}"), BarColumn(), TextColumn("{task.fields[info]}"),
+        TimeRemainingColumn(),
+    )  # fmt: skip
     last_save, started, seen = time.monotonic(), time.monotonic(), 0
     running: dict[str, float] = {}
     metrics: dict[str, float] = {}
     iterator = iter(loader)
-    while step < conf["steps"]:
-        batch = next(iterator)
-        for group in optimizer.param_groups:
-            group["lr"] = lr_at(step, conf)
-        outputs = net(batch["left"], batch["right"])
-        losses = compute_losses(outputs, batch, conf["loss"], with_refiner=step >= conf["refiner_start"])
-        optimizer.zero_grad(set_to_none=True)
-        losses["total"].backward()
-        grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), conf["clip_grad"])
-        if torch.isfinite(grad_norm):
-            optimizer.step()
-        step += 1
-        seen += batch["left"].shape[0] * world
-        for k, v in _to_float(losses).items():
-            running[k] = 0.9 * running.get(k, v) + 0.1 * v
-        if step % conf["log_every"] == 0 or step == 1:
-            rate = seen / max(time.monotonic() - started, 1e-9)
-            log("train", step=step, lr=lr_at(step, conf), pairs_per_s=rate, **running)
-        if val is not None and (step % conf["val_every"] == 0 or step == conf["steps"]):
-            metrics = validate(model, val, conf["val_count"], int(conf["input_short_side"]))
-            log("val", step=step, **metrics)
-            score = metrics["roll_median"] + metrics["pitch_median"] + metrics["vfov_median"]
-            if score < best:
-                best = score
-                save(out / "best.pt", metrics)
-        due = time.monotonic() - last_save > 60 * conf["checkpoint_minutes"] or step == conf["steps"]
-        if _agree(due, world):
-            _sync_buffers(model, world)
-            save(latest, metrics)
-            last_save = time.monotonic()
+    with Progress(*columns, console=Console(stderr=True), disable=not interactive) as bar:
+        task = bar.add_task("train", total=conf["steps"], completed=step, info="")
+        while step < conf["steps"]:
+            batch = next(iterator)
+            for group in optimizer.param_groups:
+                group["lr"] = lr_at(step, conf)
+            outputs = net(batch["left"], batch["right"])
+            losses = compute_losses(outputs, batch, conf["loss"], with_refiner=step >= conf["refiner_start"])
+            optimizer.zero_grad(set_to_none=True)
+            losses["total"].backward()
+            grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), conf["clip_grad"])
+            if torch.isfinite(grad_norm):
+                optimizer.step()
+            step += 1
+            seen += batch["left"].shape[0] * world
+            for k, v in _to_float(losses).items():
+                running[k] = 0.9 * running.get(k, v) + 0.1 * v
+            bar.update(task, completed=step, info=f"loss {running['total']:.3f}")
+            if step % conf["log_every"] == 0 or step == 1:
+                rate = seen / max(time.monotonic() - started, 1e-9)
+                log("train", step=step, lr=lr_at(step, conf), pairs_per_s=rate, **running)
+            if val is not None and (step % conf["val_every"] == 0 or step == conf["steps"]):
+                metrics = validate(model, val, conf["val_count"], int(conf["input_short_side"]))
+                log("val", step=step, **metrics)
+                score = metrics["roll_median"] + metrics["pitch_median"] + metrics["vfov_median"]
+                if score < best:
+                    best = score
+                    save(out / "best.pt", metrics)
+            due = time.monotonic() - last_save > 60 * conf["checkpoint_minutes"] or step == conf["steps"]
+            if _agree(due, world):
+                _sync_buffers(model, world)
+                save(latest, metrics)
+                last_save = time.monotonic()
     if conf.get("dump_replica"):
         torch.save(model.state_dict(), Path(conf["dump_replica"]) / f"rank{rank}.pt")
     log("done", step=step, seconds=time.monotonic() - started)
