@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed
-from stereogeo_cli.fuse import RelativePose, fuse_relative_pose, match_features
+from stereogeo_cli.fuse import Matches, RelativePose, fuse_relative_pose, match_features
 from stereogeo_cli.geometry import intrinsic_matrix, rotation_angle
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.images import check_pair
@@ -46,6 +46,7 @@ class CalibrationResult:
     right: CameraFit
     pose: RelativePose
     warnings: list[str] = field(default_factory=list)
+    matches: Matches | None = None  # all feature matches (batch-calibrate --same-rig pools them)
 
     def report(self) -> dict:
         """The JSON report (DESIGN §3), with the pose's provenance and any warnings."""
@@ -172,4 +173,4 @@ class Calibrator:
                 "warnings": list(warnings),
             },
         )  # fmt: skip
-        return CalibrationResult(calibration, fit_left, fit_right, pose, warnings)
+        return CalibrationResult(calibration, fit_left, fit_right, pose, warnings, matches)

@@ -1,0 +1,146 @@
+"""Speed of the product: warm ``calibrate`` on a 640x480 pair, cold start to first output, batch throughput.
+
+    python benchmarks/bench_calibrate.py --model models/stereogeo.onnx --runs 10 --cold-runs 3 --pairs 20
+
+- Warm: one Calibrator (one ONNX Runtime session), the pair already loaded; each run is the whole
+  ``calibrate`` (network, refiner, matching, fusion) plus writing the default files (opencv, json). Medians
+  over ``--runs`` after two warm-up runs, with the pipeline's own ``timing_ms`` breakdown.
+- Cold: ``stereogeo calibrate LEFT RIGHT --json -o DIR`` in a fresh process, wall clock until it exits
+  (interpreter start, imports, session creation, one calibration, files written); median of ``--cold-runs``.
+- Batch: ``stereogeo batch-calibrate`` over ``--pairs`` rendered 640x480 pairs, wall clock of the whole
+  command (start-up included) for each ``--workers`` value; pairs/s = pairs / wall time.
+
+The pairs are rendered with ``stereogeo make-data --size 480 --aspects 4:3 --portrait-share 0`` into a
+temporary folder (or ``--data``, reused if it holds enough pairs). The load average is printed with the
+numbers: on a shared machine they are only as good as the cores are free.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def stereogeo_command() -> list[str]:
+    """``stereogeo`` of this checkout (whatever an installed ``stereogeo`` script points at)."""
+    return [sys.executable, "-m", "stereogeo_cli"]
+
+
+def run(cmd: list[str], **kwargs) -> subprocess.CompletedProcess:
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+    }
+    return subprocess.run(cmd, env=env, **kwargs)
+
+
+def load() -> str:
+    one, five, fifteen = os.getloadavg()
+    return f"load average {one:.2f}, {five:.2f}, {fifteen:.2f} (1, 5, 15 min) on {os.cpu_count()} cores"
+
+
+def render(folder: Path, pairs: int) -> None:
+    if (folder / "calib.jsonl").is_file() and len((folder / "calib.jsonl").read_text().splitlines()) >= pairs:
+        return
+    cmd = [*stereogeo_command(), "make-data", str(folder), "--count", str(pairs), "--size", "480",
+           "--aspects", "4:3", "--portrait-share", "0", "--seed", "11", "--no-progress"]  # fmt: skip
+    run(cmd, check=True)
+
+
+def warm(model: Path, left: Path, right: Path, runs: int, threads: int) -> dict:
+    from stereogeo_cli.io import load_image, write_calibration
+    from stereogeo_cli.pipeline import Calibrator
+
+    calibrator = Calibrator(model, threads=threads)
+    images = load_image(left), load_image(right)
+    totals, writes, parts = [], [], {}
+    with tempfile.TemporaryDirectory() as out:
+        for i in range(runs + 2):
+            start = time.perf_counter()
+            result = calibrator.calibrate(*images)
+            tick = time.perf_counter()
+            write_calibration(out, result.calibration, ("opencv", "json"))
+            end = time.perf_counter()
+            if i < 2:
+                continue
+            totals.append((end - start) * 1e3)
+            writes.append((end - tick) * 1e3)
+            for key, value in result.calibration.timing_ms.items():
+                parts.setdefault(key, []).append(value)
+    breakdown = {k: round(statistics.median(v), 1) for k, v in parts.items()}
+    return {"median_ms": round(statistics.median(totals), 1), "min_ms": round(min(totals), 1),
+            "writing_ms": round(statistics.median(writes), 1), "timing_ms": breakdown}  # fmt: skip
+
+
+def cold(model: Path, left: Path, right: Path, runs: int) -> dict:
+    times = []
+    with tempfile.TemporaryDirectory() as out:
+        for i in range(runs):
+            cmd = [*stereogeo_command(), "calibrate", str(left), str(right), "--model", str(model), "--json",
+                   "-o", f"{out}/{i}"]  # fmt: skip
+            start = time.perf_counter()
+            done = run(cmd, capture_output=True, text=True, check=True)
+            times.append((time.perf_counter() - start) * 1e3)
+            json.loads(done.stdout)
+    return {"median_ms": round(statistics.median(times), 1), "runs_ms": [round(t) for t in times]}
+
+
+def batch(model: Path, folder: Path, pairs: int, workers: int, threads: int) -> dict:
+    with tempfile.TemporaryDirectory() as out:
+        cmd = [*stereogeo_command(), "batch-calibrate", str(folder), "-o", out, "--model", str(model),
+               "--workers", str(workers), "--threads", str(threads)]  # fmt: skip
+        start = time.perf_counter()
+        done = run(cmd, capture_output=True, text=True)
+        wall = time.perf_counter() - start
+        if done.returncode not in (0, 4):
+            raise SystemExit(done.stderr)
+        summary = json.loads((Path(out) / "summary.json").read_text())
+    return {"workers": workers, "pairs": summary["counts"]["pairs"], "ok": summary["counts"]["ok"],
+            "wall_s": round(wall, 2), "pairs_per_s": round(summary["counts"]["pairs"] / wall, 2),
+            "median_pair_ms": summary["medians"]["time_ms"]}  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", type=Path, default=ROOT / "models" / "stereogeo.onnx")
+    parser.add_argument("--data", type=Path, help="folder of rendered pairs (made if needed; default: temp)")
+    parser.add_argument("--runs", type=int, default=10, help="warm runs")
+    parser.add_argument("--cold-runs", type=int, default=3)
+    parser.add_argument("--pairs", type=int, default=20, help="pairs for the batch throughput")
+    parser.add_argument("--workers", default="1,2", help="comma-separated --workers values for the batch")
+    parser.add_argument("--threads", type=int, default=0, help="ONNX Runtime threads (0: one per core)")
+    args = parser.parse_args()
+    if not args.model.is_file():
+        raise SystemExit(f"no model at {args.model}: pass --model (e.g. an exported checkpoint)")
+    temp = None if args.data else tempfile.TemporaryDirectory()
+    folder = args.data or Path(temp.name) / "pairs"
+    try:
+        print(f"rendering {args.pairs} pairs into {folder} ...", file=sys.stderr)
+        render(folder, args.pairs)
+        left, right = folder / "left" / "000000.png", folder / "right" / "000000.png"
+        results = {"before": load(), "model": str(args.model)}
+        results["warm"] = warm(args.model, left, right, args.runs, args.threads)
+        print(json.dumps({"warm": results["warm"]}), file=sys.stderr)
+        results["cold"] = cold(args.model, left, right, args.cold_runs)
+        print(json.dumps({"cold": results["cold"]}), file=sys.stderr)
+        results["batch"] = [
+            batch(args.model, folder, args.pairs, int(w), args.threads) for w in args.workers.split(",")
+        ]
+        results["after"] = load()
+    finally:
+        if temp is not None:
+            temp.cleanup()
+    print(json.dumps(results, indent=2))
+
+
+if __name__ == "__main__":
+    main()

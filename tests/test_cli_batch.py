@@ -1,0 +1,348 @@
+"""``stereogeo batch-calibrate``: pair discovery, sharding, bad pairs, summaries, workers and --same-rig."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from test_cli_calibrate import assert_error, invoke
+
+from stereogeo_cli.batch import (
+    RigEvidence,
+    chordal_mean,
+    combine_focals,
+    discover_pairs,
+    parse_shard,
+    pool_matches,
+    select_shard,
+)
+from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.fuse import Matches, fuse_relative_pose
+from stereogeo_cli.geometry import intrinsic_matrix, rotation_error, rotation_from_axis_angle
+
+
+def touch(folder: Path, *names: str) -> None:
+    for name in names:
+        path = folder / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"")  # discovery never reads the files
+
+
+def described(entries) -> list[tuple]:
+    return [(e.name, e.left and e.left.name, e.right and e.right.name, e.problem is None) for e in entries]
+
+
+# ------------------------------------------------------------------------------------------------ discovery
+def test_left_right_folders_match_by_stem_in_natural_order(tmp_path):
+    touch(tmp_path, "left/img10.png", "right/img10.PNG", "left/img2.jpg", "right/img2.png", "left/img1.tif")
+    touch(tmp_path, "right/img1.TIFF", "right/lonely.png", "left/notes.txt", "calib.jsonl")
+    entries = discover_pairs(tmp_path)
+    assert described(entries) == [
+        ("img1", "img1.tif", "img1.TIFF", True),
+        ("img2", "img2.jpg", "img2.png", True),
+        ("img10", "img10.png", "img10.PNG", True),
+        ("lonely", None, "lonely.png", False),
+    ]
+    assert "left/" in entries[-1].problem
+
+
+def test_two_images_of_one_name_are_ambiguous(tmp_path):
+    touch(tmp_path, "left/a.png", "left/a.jpg", "right/a.png", "left/b.png", "right/b.png")
+    entries = discover_pairs(tmp_path)
+    assert described(entries)[1] == ("b", "b.png", "b.png", True)
+    assert entries[0].name == "a" and "a.jpg" in entries[0].problem and "a.png" in entries[0].problem
+
+
+def test_cam0_cam1_and_euroc_data_folders(tmp_path):
+    touch(tmp_path / "plain", "cam0/1.png", "cam1/1.png")
+    touch(tmp_path / "euroc", "cam0/data/1403.png", "cam1/data/1403.png", "cam0/sensor.yaml")
+    assert described(discover_pairs(tmp_path / "plain")) == [("1", "1.png", "1.png", True)]
+    assert described(discover_pairs(tmp_path / "euroc")) == [("1403", "1403.png", "1403.png", True)]
+
+
+def test_suffix_names_in_one_folder(tmp_path):
+    touch(tmp_path, "a_left.png", "a_right.png", "b_L.JPG", "b_R.jpeg", "c_Left.bmp", "c_r.bmp")
+    touch(tmp_path, "d_left.png", "overview.png", "readme.md")
+    entries = discover_pairs(tmp_path)
+    assert described(entries) == [
+        ("a", "a_left.png", "a_right.png", True),
+        ("b", "b_L.JPG", "b_R.jpeg", True),
+        ("c", "c_Left.bmp", "c_r.bmp", True),
+        ("d", "d_left.png", None, False),
+        ("overview", None, None, False),
+    ]
+    assert "_left, _right, _L or _R" in entries[-1].problem
+
+
+def test_folders_without_pairs_are_errors(tmp_path):
+    for make, match in (
+        (lambda p: None, "no stereo pairs"),
+        (lambda p: touch(p, "x_left.png"), "no stereo pairs .*1 unmatched"),
+        (lambda p: touch(p, "left/a.png"), "no right/ folder"),
+    ):
+        folder = tmp_path / f"case{len(list(tmp_path.iterdir()))}"
+        folder.mkdir()
+        make(folder)
+        with pytest.raises(StereoGeoError, match=match) as err:
+            discover_pairs(folder)
+        assert err.value.exit_code == 2
+    with pytest.raises(StereoGeoError, match="not found"):
+        discover_pairs(tmp_path / "missing")
+
+
+@pytest.mark.parametrize("text, expected", [("1/1", (1, 1)), ("1/4", (1, 4)), (" 4 / 4 ", (4, 4))])
+def test_shard_numbers_are_one_based(text, expected):
+    assert parse_shard(text) == expected
+
+
+@pytest.mark.parametrize("text", ["0/4", "5/4", "1/0", "a/b", "1-4", "", "-1/4", "1/4/2"])
+def test_bad_shards_are_usage_errors(text):
+    with pytest.raises(StereoGeoError) as err:
+        parse_shard(text)
+    assert err.value.exit_code == 2 and "\n" not in str(err.value)
+
+
+def test_shards_cover_every_entry_once():
+    entries = list(range(11))
+    shards = [select_shard(entries, (i, 3)) for i in (1, 2, 3)]
+    assert shards[0] == [0, 3, 6, 9] and sorted(sum(shards, [])) == entries
+    assert select_shard(entries, None) == entries
+
+
+# ------------------------------------------------------------------------------------------ the command
+@pytest.fixture(scope="module")
+def small_images(example_pair) -> tuple[np.ndarray, np.ndarray]:
+    """The example pair at 320x240, BGR (quick to calibrate)."""
+    return tuple(
+        cv2.resize(cv2.imread(str(p)), (320, 240), interpolation=cv2.INTER_AREA) for p in example_pair
+    )
+
+
+def pair_folder(folder: Path, images, names=("a", "b")) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        cv2.imwrite(str(folder / f"{name}_left.png"), images[0])
+        cv2.imwrite(str(folder / f"{name}_right.png"), images[1])
+    return folder
+
+
+def read_csv(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_bad_pairs_are_reported_and_the_rest_written(small_images, onnx_model, tmp_path):
+    folder = pair_folder(tmp_path / "in", small_images)
+    cv2.imwrite(str(folder / "c_left.png"), small_images[0])  # no right
+    (folder / "d_left.png").write_text("not an image")
+    cv2.imwrite(str(folder / "d_right.png"), small_images[1])
+    cv2.imwrite(str(folder / "e_left.png"), small_images[0])
+    cv2.imwrite(str(folder / "e_right.png"), np.full_like(small_images[1], 77))  # blank
+    out = tmp_path / "out"
+    result = invoke("batch-calibrate", folder, "-o", out, "--model", onnx_model, "--format", "json,ros")
+    assert result.exit_code == 4, result.output
+    assert "Traceback" not in result.output
+    failures = [line for line in result.stderr.splitlines() if "failed" in line or "unmatched" in line]
+    assert len(failures) == 3
+    assert any("c_left.png has no right image" in f for f in failures)
+    assert any("d_left.png" in f for f in failures) and any("blank" in f for f in failures)
+    for name in ("a", "b"):
+        assert sorted(p.name for p in (out / name).iterdir()) == ["left.yaml", "report.json", "right.yaml"]
+    assert not (out / "c").exists() and not (out / "d").exists()
+    rows = read_csv(out / "summary.csv")
+    assert [(r["name"], r["status"]) for r in rows] == [
+        ("a", "ok"), ("b", "ok"), ("c", "failed"), ("d", "failed"), ("e", "failed"),
+    ]  # fmt: skip
+    assert float(rows[0]["left_focal_px"]) > 0 and rows[0]["error"] == "" and "blank" in rows[4]["error"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["counts"] == {"pairs": 5, "ok": 2, "failed": 3}
+    assert summary["medians"]["left_focal_px"] == pytest.approx(float(rows[0]["left_focal_px"]))
+    assert summary["pairs"][0]["report"]["left"]["K"] and summary["pairs"][2]["report"] is None
+
+
+def test_all_pairs_ok_json_on_stdout(small_images, onnx_model, tmp_path):
+    folder = tmp_path / "in"
+    for side, image in zip(("left", "right"), small_images, strict=True):
+        (folder / side).mkdir(parents=True)
+        for name in ("x1", "x2"):
+            cv2.imwrite(str(folder / side / f"{name}.png"), image)
+    out = tmp_path / "out"
+    result = invoke("batch-calibrate", folder, "-o", out, "--model", onnx_model, "--json")
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    assert summary["counts"] == {"pairs": 2, "ok": 2, "failed": 0}
+    assert summary == json.loads((out / "summary.json").read_text())
+    assert (out / "x1" / "intrinsics.yml").is_file() and (out / "x2" / "report.json").is_file()
+
+
+def test_empty_folder(onnx_model, tmp_path):
+    (tmp_path / "empty").mkdir()
+    assert_error(invoke("batch-calibrate", tmp_path / "empty", "-o", tmp_path / "out", "--model", onnx_model),
+                 2, "no stereo pairs")  # fmt: skip
+
+
+def test_usage_errors(small_images, onnx_model, tmp_path):
+    folder = pair_folder(tmp_path, small_images, ("a",))
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    base = ("batch-calibrate", folder, "--model", onnx_model)
+    assert_error(invoke(*base, "-o", blocker), 2, "not a folder")
+    assert_error(invoke(*base, "-o", blocker / "sub"), 2, "file")
+    assert_error(invoke(*base, "-o", tmp_path / "o", "--shard", "0/2"), 2, "numbered from 1")
+    assert_error(invoke(*base, "-o", tmp_path / "o", "--format", "pdf"), 2, "pdf")
+    assert_error(invoke(*base, "-o", tmp_path / "o", "--baseline", "-2"), 2, "--baseline")
+    assert_error(invoke(*base, "-o", tmp_path / "o", "--workers", "0"), 2, "--workers")
+    corrupt = tmp_path / "bad.onnx"
+    corrupt.write_bytes(b"\x08\x01garbage")
+    for workers in ("1", "2"):
+        assert_error(
+            invoke(*base[:2], "-o", tmp_path / "o", "--model", corrupt, "--workers", workers), 2, "bad.onnx"
+        )
+    assert not (tmp_path / "o" / "a").exists()
+
+
+def test_shard_writes_its_own_summary(small_images, onnx_model, tmp_path):
+    folder = pair_folder(tmp_path / "in", small_images, ("p1", "p2", "p3"))
+    out = tmp_path / "out"
+    result = invoke("batch-calibrate", folder, "-o", out, "--model", onnx_model, "--shard", "2/2")
+    assert result.exit_code == 0, result.output
+    assert [r["name"] for r in read_csv(out / "summary-shard-2-of-2.csv")] == ["p2"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "p2",
+        "summary-shard-2-of-2.csv",
+        "summary-shard-2-of-2.json",
+    ]
+
+
+def test_two_workers_keep_the_sorted_order(small_images, onnx_model, tmp_path):
+    folder = pair_folder(tmp_path / "in", small_images, ("n3", "n1", "n2"))
+    args = ("-o", tmp_path / "out", "--model", onnx_model, "--workers", "2", "--threads", "2")
+    result = invoke("batch-calibrate", folder, *args)
+    assert result.exit_code == 0, result.output
+    rows = read_csv(tmp_path / "out" / "summary.csv")
+    assert [(r["name"], r["status"]) for r in rows] == [("n1", "ok"), ("n2", "ok"), ("n3", "ok")]
+
+
+def test_same_rig_writes_one_joint_calibration(small_images, onnx_model, tmp_path):
+    folder = pair_folder(tmp_path / "in", small_images, ("a", "b"))
+    cv2.imwrite(str(folder / "c_left.png"), small_images[0])  # unmatched: reported, not part of the rig
+    out = tmp_path / "out"
+    result = invoke(
+        "batch-calibrate", folder, "-o", out, "--model", onnx_model, "--same-rig", "--baseline", "0.12"
+    )
+    assert result.exit_code == 4, result.output
+    assert sorted(p.name for p in (out / "rig").iterdir()) == [
+        "extrinsics.yml",
+        "intrinsics.yml",
+        "report.json",
+    ]
+    rig = json.loads((out / "rig" / "report.json").read_text())
+    assert rig["baseline_m"] == pytest.approx(0.12) and rig["scale_source"] == "baseline"
+    assert [p["name"] for p in rig["pairs"]] == ["a", "b"]
+    for p in rig["pairs"]:
+        assert len(p["gravity_left"]) == 3 and len(p["gravity_right"]) == 3
+        assert {"left_roll_deg", "left_pitch_deg", "right_roll_deg", "right_pitch_deg"} <= set(p)
+    assert rig["left"]["sigma"]["focal_px"] > 0
+    assert json.loads((out / "summary.json").read_text())["rig"]["folder"] == "rig"
+
+
+def test_same_rig_needs_one_image_size(small_images, onnx_model, tmp_path):
+    folder = pair_folder(tmp_path / "in", small_images, ("a",))
+    cv2.imwrite(str(folder / "b_left.png"), cv2.resize(small_images[0], (400, 300)))
+    cv2.imwrite(str(folder / "b_right.png"), cv2.resize(small_images[1], (400, 300)))
+    result = invoke("batch-calibrate", folder, "-o", tmp_path / "out", "--model", onnx_model, "--same-rig")
+    assert_error_line = [line for line in result.stderr.splitlines() if line.startswith("error:")]
+    assert result.exit_code == 2 and len(assert_error_line) == 1 and "differ in size" in assert_error_line[0]
+    assert (tmp_path / "out" / "a" / "report.json").is_file() and (tmp_path / "out" / "summary.csv").is_file()
+
+
+# ------------------------------------------------------------------------------------------ same-rig maths
+def test_focal_combination_beats_single_pairs_and_drops_outliers():
+    rng = np.random.default_rng(3)
+    true_f, errors_single, errors_joint = 600.0, [], []
+    for _ in range(200):
+        sigma_log = rng.uniform(0.03, 0.15, 8)
+        focals = true_f * np.exp(rng.normal(0.0, sigma_log))
+        focals[0] = 3 * true_f  # a confidently wrong pair
+        sigma_log[0] = 0.03
+        estimate = combine_focals(focals, focals * sigma_log)
+        assert not estimate.used[0]
+        errors_single.append(np.median(np.abs(np.log(focals[1:] / true_f))))
+        errors_joint.append(abs(np.log(estimate.focal_px / true_f)))
+    assert np.median(errors_joint) < 0.5 * np.median(errors_single)
+    one = combine_focals([500.0], [25.0])
+    assert one.focal_px == pytest.approx(500.0) and one.sigma_px == pytest.approx(25.0) and one.used.all()
+
+
+def synthetic_rig_matches(rng, K_left, K_right, R, T, n=60, noise_px=0.7, outliers=0.15) -> Matches:
+    X = np.column_stack([rng.uniform(-4, 4, n), rng.uniform(-3, 3, n), rng.uniform(3, 25, n)])
+    left = (X / X[:, 2:]) @ K_left.T
+    Xr = X @ R.T + T
+    right = (Xr / Xr[:, 2:]) @ K_right.T
+    left, right = (
+        left[:, :2] + rng.normal(0, noise_px, (n, 2)),
+        right[:, :2] + rng.normal(0, noise_px, (n, 2)),
+    )
+    bad = rng.random(n) < outliers
+    right[bad] = rng.uniform(0, 640, (bad.sum(), 2))
+    return Matches(left, right)
+
+
+def test_pooled_matches_give_a_better_pose_than_single_pairs():
+    """Several pairs of one rig (exact K, R, T; few noisy matches each): one pooled estimate is better."""
+    rng = np.random.default_rng(7)
+    K_left, K_right = intrinsic_matrix(500.0, 640, 480), intrinsic_matrix(520.0, 640, 480)
+    R, T = rotation_from_axis_angle(np.radians([0.5, 2.0, 0.3])), np.array([-0.12, 0.003, 0.002])
+    evidence, single, single_t = [], [], []
+
+    def direction_error(t):
+        return np.degrees(np.arccos(np.clip(t @ T / np.linalg.norm(T), -1.0, 1.0)))
+
+    for _ in range(8):
+        m = synthetic_rig_matches(rng, K_left, K_right, R, T)
+        pose = fuse_relative_pose(m, K_left, K_right)
+        single.append(np.degrees(rotation_error(pose.R, R)))
+        single_t.append(direction_error(pose.t_direction))
+        evidence.append(RigEvidence((640, 480), (640, 480), (500.0, 520.0), (1.0, 1.0), None, None, pose.R,
+                                    pose.t_direction, pose.source, 0.12, m.left, m.right))  # fmt: skip
+    pooled, counts = pool_matches(evidence, K_left, K_right)
+    assert len(pooled) == sum(counts) and min(counts) > 30
+    t_mean = np.sum([e.t_direction for e in evidence], axis=0)
+    joint = fuse_relative_pose(pooled, K_left, K_right, prior_R=chordal_mean([e.R for e in evidence]),
+                               prior_t=t_mean)  # fmt: skip
+    joint_error = np.degrees(rotation_error(joint.R, R))
+    assert joint_error < 0.5 * np.median(single), (joint_error, single)
+    assert direction_error(joint.t_direction) < np.median(single_t), (joint.t_direction, single_t)
+
+
+def test_pooling_real_pairs_of_one_rig(shared_data):
+    """EuRoC: 10 pairs of one rig, with the ground-truth intrinsics (undistorted matches)."""
+    from stereogeo_cli.fuse import match_features
+    from stereogeo_cli.io import load_image
+
+    folder = shared_data / "real-dev" / "euroc"
+    evidence, single = [], []
+    for line in (folder / "calib.jsonl").read_text().splitlines():
+        calib = json.loads(line)
+        images = [load_image(folder / side / f"{calib['id']}.png") for side in ("left", "right")]
+        K = [np.array(calib[side]["K"]) for side in ("left", "right")]
+        m = match_features(*images)
+        undistorted = [
+            cv2.undistortPoints(pts.reshape(-1, 1, 2), k, np.array(calib[side]["dist"]), P=k).reshape(-1, 2)
+            for pts, k, side in ((m.left, K[0], "left"), (m.right, K[1], "right"))
+        ]
+        m = Matches(*undistorted)
+        pose = fuse_relative_pose(m, *K)
+        R_true = np.array(calib["R"])
+        single.append(np.degrees(rotation_error(pose.R, R_true)))
+        evidence.append(RigEvidence((752, 480), (752, 480), (0.0, 0.0), (1.0, 1.0), None, None, pose.R,
+                                    pose.t_direction, pose.source, 0.11, m.left, m.right))  # fmt: skip
+    pooled, _ = pool_matches(evidence, *K)
+    t_mean = np.sum([e.t_direction for e in evidence], axis=0)
+    joint = fuse_relative_pose(pooled, *K, prior_R=chordal_mean([e.R for e in evidence]), prior_t=t_mean)
+    joint_error = np.degrees(rotation_error(joint.R, R_true))
+    assert joint_error < np.median(single), (joint_error, sorted(single))

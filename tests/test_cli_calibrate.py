@@ -1,0 +1,225 @@
+"""``stereogeo calibrate`` as a user meets it: real image files, every way an input can be wrong (DESIGN §8).
+
+Errors must be one line on stderr (``error: ...``), never a traceback, with the exit code of DESIGN §8.
+The installed Click (8.2+) keeps stderr apart: ``result.stdout`` is stdout only, ``result.stderr`` stderr.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from stereogeo_cli.cli import app
+
+ROOT = Path(__file__).resolve().parents[1]
+runner = CliRunner()
+
+
+def invoke(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def assert_error(result, code: int, *words: str) -> str:
+    """The command failed with ``code``, one ``error:`` line on stderr naming ``words``, nothing on stdout."""
+    assert result.exit_code == code, (result.exit_code, result.output)
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("error: ") and "Traceback" not in result.output
+    for word in words:
+        assert word in lines[0], lines[0]
+    assert result.stdout == ""
+    return lines[0]
+
+
+def write_rgb(path: Path, rgb: np.ndarray) -> Path:
+    assert cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR) if rgb.ndim == 3 else rgb)
+    return path
+
+
+@pytest.fixture(scope="module")
+def pair(example_pair, tmp_path_factory) -> tuple[Path, Path]:
+    """The example pair at 320x240 (quick to calibrate) as PNG files."""
+    folder = tmp_path_factory.mktemp("small")
+    paths = []
+    for name, src in zip(("left", "right"), example_pair, strict=True):
+        image = cv2.imread(str(src), cv2.IMREAD_COLOR)
+        small = cv2.resize(image, (320, 240), interpolation=cv2.INTER_AREA)
+        path = folder / f"{name}.png"
+        cv2.imwrite(str(path), small)
+        paths.append(path)
+    return paths[0], paths[1]
+
+
+def rgb(path: Path) -> np.ndarray:
+    return cv2.cvtColor(cv2.imread(str(path), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+# ------------------------------------------------------------------------------------------------ bad input
+def test_missing_file(pair, onnx_model, tmp_path):
+    assert_error(invoke("calibrate", tmp_path / "nope.png", pair[1], "--model", onnx_model), 2, "not found")
+
+
+def test_not_an_image(pair, onnx_model, tmp_path):
+    text = tmp_path / "notes.png"
+    text.write_text("these are my holiday notes, not a picture\n")
+    assert_error(invoke("calibrate", pair[0], text, "--model", onnx_model), 2, "notes.png")
+
+
+def test_truncated_png(pair, onnx_model, tmp_path):
+    data = pair[0].read_bytes()
+    cut = tmp_path / "cut.png"
+    cut.write_bytes(data[: len(data) // 2])
+    assert_error(invoke("calibrate", cut, pair[1], "--model", onnx_model), 2, "truncated")
+
+
+def test_one_pixel_image(pair, onnx_model, tmp_path):
+    tiny = write_rgb(tmp_path / "tiny.png", np.full((1, 1, 3), 128, np.uint8))
+    assert_error(invoke("calibrate", tiny, pair[1], "--model", onnx_model), 2, "too small")
+
+
+def test_blank_image_fails_calibration_with_the_reason(pair, onnx_model, tmp_path):
+    blank = write_rgb(tmp_path / "blank.png", np.full((240, 320, 3), 90, np.uint8))
+    assert_error(invoke("calibrate", pair[0], blank, "--model", onnx_model), 3, "blank")
+
+
+@pytest.mark.parametrize("kind", ["16-bit", "rgba", "grey"])
+def test_16_bit_rgba_and_grey_images_are_accepted(pair, onnx_model, tmp_path, kind):
+    image = rgb(pair[1])
+    if kind == "16-bit":
+        converted = cv2.cvtColor(image, cv2.COLOR_RGB2BGR).astype(np.uint16) * 257
+    elif kind == "rgba":
+        converted = cv2.cvtColor(image, cv2.COLOR_RGB2BGRA)
+        converted[..., 3] = 200  # transparency is dropped, not blended
+    else:
+        converted = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+    path = tmp_path / "right.png"
+    assert cv2.imwrite(str(path), converted)
+    result = invoke("calibrate", pair[0], path, "--model", onnx_model, "--json")
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["right"]["width"] == 320
+
+
+def test_output_folder_that_is_a_file(pair, onnx_model, tmp_path):
+    blocker = tmp_path / "taken"
+    blocker.write_text("a file where the output folder should go")
+    assert_error(invoke("calibrate", *pair, "--model", onnx_model, "-o", blocker), 2, "not a folder")
+    # a folder under a file cannot be made either (permission bits do not stop root, this does)
+    assert_error(invoke("calibrate", *pair, "--model", onnx_model, "-o", blocker / "sub"), 2, "taken")
+    assert_error(
+        invoke("calibrate", *pair, "--model", onnx_model, "--preview", blocker / "p.png"), 2, "taken"
+    )
+
+
+@pytest.mark.parametrize("content", [b"", b"not an onnx model at all" * 10])
+def test_corrupt_model_file(pair, tmp_path, content):
+    model = tmp_path / "model.onnx"
+    model.write_bytes(content)
+    assert_error(invoke("calibrate", *pair, "--model", model), 2, "model.onnx")
+
+
+def test_missing_model_file(pair, tmp_path):
+    assert_error(invoke("calibrate", *pair, "--model", tmp_path / "gone.onnx"), 2, "model file not found")
+
+
+def test_bad_format(pair, onnx_model, tmp_path):
+    result = invoke("calibrate", *pair, "--model", onnx_model, "-o", tmp_path, "--format", "opencv,matlab")
+    assert_error(result, 2, "matlab", "opencv, ros")
+
+
+@pytest.mark.parametrize("value", ["0", "-0.1", "nan", "inf"])
+def test_bad_baseline(pair, onnx_model, value):
+    assert_error(invoke("calibrate", *pair, "--model", onnx_model, "--baseline", value), 2, "--baseline")
+
+
+def test_baseline_that_is_not_a_number(pair, onnx_model):
+    result = invoke("calibrate", *pair, "--model", onnx_model, "--baseline", "ten")
+    assert result.exit_code == 2 and "Traceback" not in result.output  # Click's usage error
+    assert "--baseline" in result.stderr
+
+
+# ------------------------------------------------------------------------------------------------- outputs
+def test_json_is_one_object_on_stdout_and_nothing_else(pair, onnx_model):
+    result = invoke("calibrate", *pair, "--model", onnx_model, "--json", "--baseline", "0.2")
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)  # raises if anything else is on stdout
+    assert isinstance(report, dict)
+    for key in ("left", "right", "R", "T", "baseline_m", "scale_source", "matches", "timing_ms", "model"):
+        assert key in report
+    for side in ("left", "right"):
+        cam = report[side]
+        for key in ("width", "height", "K", "focal_px", "vfov_deg", "roll_deg", "pitch_deg", "gravity_up"):
+            assert key in cam
+        assert set(cam["sigma"]) >= {"focal_px", "vfov_deg", "roll_deg", "pitch_deg"}
+    assert np.array(report["R"]).shape == (3, 3) and len(report["T"]) == 3
+    assert report["scale_source"] == "baseline" and report["baseline_m"] == pytest.approx(0.2)
+    assert set(report["matches"]) == {"found", "inliers"} and report["timing_ms"]["total"] > 0
+    assert set(report["model"]) == {"file", "sha256"}
+
+
+def test_output_folder_gets_the_default_formats(pair, onnx_model, tmp_path):
+    out = tmp_path / "calib"
+    result = invoke("calibrate", *pair, "--model", onnx_model, "-o", out)
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in out.iterdir()) == ["extrinsics.yml", "intrinsics.yml", "report.json"]
+    intrinsics = cv2.FileStorage(str(out / "intrinsics.yml"), cv2.FILE_STORAGE_READ)
+    extrinsics = cv2.FileStorage(str(out / "extrinsics.yml"), cv2.FILE_STORAGE_READ)
+    M1 = intrinsics.getNode("M1").mat()
+    assert M1.shape == (3, 3) and M1[2, 2] == 1.0 and intrinsics.getNode("D2").mat().shape == (1, 5)
+    R, T = extrinsics.getNode("R").mat(), extrinsics.getNode("T").mat()
+    assert R.shape == (3, 3) and T.shape == (3, 1) and extrinsics.getNode("Q").mat().shape == (4, 4)
+    report = json.loads((out / "report.json").read_text())
+    np.testing.assert_allclose(R, report["R"], atol=1e-9)
+    np.testing.assert_allclose(M1, report["left"]["K"], rtol=1e-9)
+
+
+def test_preview_is_a_png(pair, onnx_model, tmp_path):
+    preview = tmp_path / "views" / "preview.png"
+    result = invoke("calibrate", *pair, "--model", onnx_model, "--preview", preview)
+    assert result.exit_code == 0, result.output
+    image = cv2.imread(str(preview))
+    assert preview.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and image is not None and image.shape[0] > 0
+
+
+def test_left_and_right_of_different_sizes(pair, onnx_model, tmp_path):
+    right = write_rgb(tmp_path / "right.png", cv2.resize(rgb(pair[1]), (400, 300)))
+    result = invoke("calibrate", pair[0], right, "--model", onnx_model, "--json")
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    assert (report["left"]["width"], report["left"]["height"]) == (320, 240)
+    assert (report["right"]["width"], report["right"]["height"]) == (400, 300)
+    assert report["right"]["K"][0][2] == 200.0 and report["right"]["K"][1][2] == 150.0
+
+
+# -------------------------------------------------------------------------------------------- no torch
+def test_calibrate_does_not_import_torch(pair, onnx_model, tmp_path):
+    """In a fresh interpreter (this test session may well have imported torch)."""
+    code = f"""
+import sys
+from typer.testing import CliRunner
+from stereogeo_cli.cli import app
+runner = CliRunner()
+result = runner.invoke(app, ["calibrate", {str(pair[0])!r}, {str(pair[1])!r}, "--model", {str(onnx_model)!r},
+                             "-o", {str(tmp_path / "out")!r}, "--format", "opencv,ros,kalibr,colmap,json"])
+assert result.exit_code == 0, result.output
+folder = {str(tmp_path / "batch")!r}
+import shutil, os
+os.makedirs(folder + "/left"); os.makedirs(folder + "/right")
+shutil.copy({str(pair[0])!r}, folder + "/left/a.png"); shutil.copy({str(pair[1])!r}, folder + "/right/a.png")
+args = ["batch-calibrate", folder, "-o", folder + "-out", "--model", {str(onnx_model)!r}]
+result = runner.invoke(app, args)
+assert result.exit_code == 0, result.output
+heavy = sorted(m for m in sys.modules if m.split(".")[0] in ("torch", "torchvision", "moderngl", "skimage"))
+assert not heavy, heavy
+print("no torch")
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "no torch"
