@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -53,6 +54,13 @@ class CalibrationResult:
         return self.calibration.to_report()
 
 
+def _timed(function, *args):
+    """(function(*args), its wall time in milliseconds)."""
+    tick = time.perf_counter()
+    result = function(*args)
+    return result, (time.perf_counter() - tick) * 1e3
+
+
 def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
@@ -70,6 +78,7 @@ class Calibrator:
         self.conf = {**default_conf, **(conf or {})}
         self.model_path = Path(model_path) if model_path is not None else default_model_path()
         self.network = FieldNetwork(self.model_path, threads=threads)
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-matching")
 
     def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:
         rc = view.resize_crop
@@ -104,6 +113,9 @@ class Calibrator:
         timing: dict[str, float] = {}
         start = time.perf_counter()
         check_pair(left, right)
+        # Feature matching needs no network output: it runs on a second thread while ONNX Runtime runs
+        # (both release the GIL), so on two cores the two overlap.
+        matching = self._pool.submit(_timed, match_features, left, right, self.conf["match"])
         tick = time.perf_counter()
         net = self.network.predict(left, right)
         timing["network"] = (time.perf_counter() - tick) * 1e3
@@ -126,9 +138,7 @@ class Calibrator:
 
         K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
         K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
-        tick = time.perf_counter()
-        matches = match_features(left, right, self.conf["match"])
-        timing["matching"] = (time.perf_counter() - tick) * 1e3
+        matches, timing["matching"] = matching.result()
         tick = time.perf_counter()
         gravity_sigma = math.radians(
             math.sqrt(

@@ -18,7 +18,7 @@ from stereogeo_cli.geometry.gravity import (
     retract_on_sphere,
     tangent_basis,
 )
-from stereogeo_cli.geometry.rotation import axis_angle_from_rotation, rotation_from_axis_angle
+from stereogeo_cli.geometry.rotation import axis_angle_from_rotation, rotation_error, rotation_from_axis_angle
 
 default_conf = {
     "min_matches": 20,  # fewer matches than this: the pose head and gravity alone
@@ -157,7 +157,9 @@ def fuse_relative_pose(
     starts = [(R0, t0)]
     if prior_R is not None and prior_t is not None:
         R_p = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
-        starts.append((R_p, np.asarray(prior_t, dtype=float) / np.linalg.norm(prior_t)))
+        t_p = np.asarray(prior_t, dtype=float) / np.linalg.norm(prior_t)
+        if rotation_error(R_p, R0) > np.radians(0.5) or np.degrees(gravity_angle(t_p, t0)) > 5.0:
+            starts.append((R_p, t_p))  # a second start only where it could lead elsewhere
     best = None
     for R, t in starts:
         mask = mask0
@@ -247,9 +249,10 @@ def _refine_pose(R, t, left, right, K_left, K_right, noise_px, priors: _Priors, 
         step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), J.T @ (w * r))
         R_new, t_new = moved(R, t, step)
         r_new = residuals(R_new, t_new)
-        if float(np.sum(w * r_new * r_new)) < float(np.sum(w * r * r)):
+        cost, new_cost = float(np.sum(w * r * r)), float(np.sum(w * r_new * r_new))
+        if new_cost < cost:
             R, t, lam = R_new, t_new, lam * 0.1
-            if np.linalg.norm(step) < 1e-10:
+            if cost - new_cost < 1e-6 * cost or np.linalg.norm(step) < 1e-10:
                 break
         else:
             lam *= 10
