@@ -383,7 +383,9 @@ def export_onnx_command(
     typer.echo(f"wrote {result['path']} (largest difference from torch {worst:.2e})")
 
 
-@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+@app.command(
+    context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": []}
+)
 def train(ctx: typer.Context) -> None:
     """Train the network (resumable; run under torchrun for several processes). --help lists the settings."""
     from stereogeo_cli.network.train import main as train_main

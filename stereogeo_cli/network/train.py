@@ -27,33 +27,38 @@ from stereogeo_cli.network.losses import compute_losses
 from stereogeo_cli.network.losses import default_conf as loss_defaults
 from stereogeo_cli.network.model import StereoGeoNet
 
-default_conf: dict[str, Any] = {
-    "data": [],  # dataset folders (left/, right/, calib.jsonl) to train on
-    "render": 0,  # additionally render this many pairs on the fly (synthetic sampler), 0 for none
-    "render_seed": 1000,  # dataset seed of the on-the-fly pairs
-    "panoramas": None,  # panorama folder for the on-the-fly pairs' skies and crops
-    "val": None,  # dataset folder for validation (rendered from seeds never used in training)
-    "val_count": 64,  # validation pairs used
-    "out": "runs/train",  # where checkpoints and logs go
-    "steps": 6000,  # optimiser steps in all
-    "batch_size": 8,  # pairs per step and process
-    "sizes": [list(s) for s in TRAIN_SIZES],  # training sizes (width, height); one per batch
-    "input_short_side": 224,  # the inference rule written into the exported model (short side, pixels)
-    "lr": 1e-4,  # AdamW learning rate after warm-up
-    "weight_decay": 1e-4,
-    "warmup_steps": 300,  # linear warm-up from 0
-    "decay_at": [0.7, 0.9],  # fractions of ``steps`` where the learning rate is multiplied by 0.1
-    "clip_grad": 1.0,  # gradient-norm clipping
-    "refiner_start": 500,  # the camera loss through the unrolled refiner starts after this many steps
-    "loss": {},  # overrides of stereogeo_cli.network.losses.default_conf
-    "val_every": 500,  # validation every this many steps (and at the end)
-    "checkpoint_minutes": 5.0,  # write OUT/latest.pt at least this often
-    "log_every": 20,  # a progress line every this many steps
-    "threads": 2,  # torch intra-op threads per process
-    "workers": 1,  # data-loading processes per training process
-    "seed": 0,  # model init, batch order
-    "model_version": None,  # a name for the model (default: OUT's folder name)
+SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
+    "data": ([], "Dataset folders (left/, right/, calib.jsonl) to train on."),
+    "render": (0, "Additionally render this many pairs on the fly (synthetic sampler), 0 for none."),
+    "render_seed": (1000, "Dataset seed of the on-the-fly pairs."),
+    "panoramas": (None, "Panorama folder for the on-the-fly pairs' skies and crops."),
+    "val": (None, "Dataset folder for validation (rendered from seeds never used in training)."),
+    "val_count": (64, "Validation pairs used."),
+    "out": ("runs/train", "Where checkpoints and logs go."),
+    "steps": (6000, "Optimiser steps in all."),
+    "batch_size": (8, "Pairs per step and process."),
+    "sizes": ([list(s) for s in TRAIN_SIZES], "Training sizes (width, height); one per batch."),
+    "input_short_side": (224, "The inference rule written into the exported model (short side, pixels)."),
+    "lr": (1e-4, "AdamW learning rate after warm-up."),
+    "weight_decay": (1e-4, "AdamW weight decay."),
+    "warmup_steps": (300, "Linear warm-up from 0."),
+    "decay_at": ([0.7, 0.9], "Fractions of ``steps`` where the learning rate is multiplied by 0.1."),
+    "clip_grad": (1.0, "Gradient-norm clipping."),
+    "refiner_start": (500, "The camera loss through the unrolled refiner starts after this many steps."),
+    "loss": ({}, "Overrides of stereogeo_cli.network.losses.default_conf."),
+    "val_every": (500, "Validation every this many steps (and at the end)."),
+    "checkpoint_minutes": (5.0, "Write OUT/latest.pt at least this often."),
+    "log_every": (20, "A progress line every this many steps."),
+    "threads": (2, "Torch intra-op threads per process."),
+    "workers": (1, "Data-loading processes per training process."),
+    "seed": (0, "Model init, batch order."),
+    "model_version": (None, "A name for the model (default: OUT's folder name)."),
+    "init": (
+        None,
+        "Start from the weights of this checkpoint (e.g. models/stereogeo.pt) instead of ImageNet.",
+    ),
 }
+default_conf: dict[str, Any] = {key: value for key, (value, _) in SETTINGS.items()}
 
 
 def lr_at(step: int, conf: dict) -> float:
@@ -213,6 +218,9 @@ def train(conf: dict) -> dict:
     model = StereoGeoNet({"pretrained": True})
     optimizer = torch.optim.AdamW(model.parameters(), lr=conf["lr"], weight_decay=conf["weight_decay"])
     step, best = 0, math.inf
+    if conf["init"] and not (conf.get("resume") and latest.is_file()):
+        model.load_state_dict(load_checkpoint(conf["init"])[0].state_dict())
+        log("init", checkpoint=str(conf["init"]))
     if conf.get("resume") and latest.is_file():
         loaded, checkpoint = load_checkpoint(latest)
         model.load_state_dict(loaded.state_dict())
@@ -313,7 +321,7 @@ def train(conf: dict) -> dict:
 
 def parse_args(argv: list[str] | None = None) -> dict:
     """Command-line arguments (for torchrun) → a training config: defaults < --config file < flags."""
-    parser = argparse.ArgumentParser(prog="stereogeo-train", description=__doc__)
+    parser = argparse.ArgumentParser(prog="stereogeo train", description=__doc__)
     parser.add_argument("--config", type=Path, help="a JSON file with any of the training settings")
     parser.add_argument("--data", action="append", help="a dataset folder (repeatable)")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/latest.pt if it exists")
@@ -322,7 +330,7 @@ def parse_args(argv: list[str] | None = None) -> dict:
         if key in ("data", "sizes", "decay_at", "loss"):
             continue
         kind = type(value) if value is not None else str
-        parser.add_argument(f"--{key.replace('_', '-')}", type=kind, default=None)
+        parser.add_argument(f"--{key.replace('_', '-')}", type=kind, default=None, help=SETTINGS[key][1])
     args = parser.parse_args(argv)
     conf = dict(default_conf)
     if args.config:
