@@ -369,12 +369,26 @@ def export_onnx_command(
     model_version: Annotated[
         str | None, typer.Option(help="A version name stored in the model (default: the checkpoint's).")
     ] = None,
+    sigma_inflation: Annotated[
+        float,
+        typer.Option(
+            help="Factor the refiner's 1-sigma figures are widened by with this model (measured on "
+            "validation data: the share of errors within 1 sigma should be about 68 %)."
+        ),
+    ] = 1.0,
 ) -> None:
     """Export a checkpoint to one ONNX file (both views, any size), after checking it against torch."""
     try:
         from stereogeo_cli.network.export import export_onnx
 
-        result = export_onnx(checkpoint, output, model_version=model_version)
+        if not sigma_inflation > 0:
+            raise StereoGeoError(f"--sigma-inflation must be positive, got {sigma_inflation}")
+        result = export_onnx(
+            checkpoint,
+            output,
+            model_version=model_version,
+            extra_metadata={"sigma_inflation": sigma_inflation},
+        )
     except StereoGeoError as error:
         raise fail(error) from None
     except Exception as error:  # noqa: BLE001

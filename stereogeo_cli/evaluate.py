@@ -118,6 +118,7 @@ def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False,
             K = np.asarray(cam["K"], dtype=float)
             vfov = math.degrees(float(vfov_from_focal(K[1, 1], cam["height"])))
             row[f"{view}_vfov_error_deg"] = abs(fit.vfov_deg - vfov)
+            row[f"{view}_vfov_z"] = _z(row[f"{view}_vfov_error_deg"], fit.sigma["vfov_deg"])
             row[f"{view}_focal_error_rel"] = abs(fit.focal_px / (0.5 * (K[0, 0] + K[1, 1])) - 1)
             if cam.get("gravity_up") is not None:
                 roll, pitch = (
@@ -125,6 +126,8 @@ def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False,
                 )
                 row[f"{view}_roll_error_deg"] = abs((fit.roll_deg - roll + 180) % 360 - 180)
                 row[f"{view}_pitch_error_deg"] = abs(fit.pitch_deg - pitch)
+                row[f"{view}_roll_z"] = _z(row[f"{view}_roll_error_deg"], fit.sigma["roll_deg"])
+                row[f"{view}_pitch_z"] = _z(row[f"{view}_pitch_error_deg"], fit.sigma["pitch_deg"])
         if record.get("R") is not None:
             c = result.calibration
             row["rotation_error_deg"] = math.degrees(rotation_error(c.R, np.asarray(record["R"])))
@@ -144,6 +147,11 @@ def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False,
     return {"dataset": str(folder), "pairs": per_pair, "failed": failed, **_summaries(per_pair, len(records))}
 
 
+def _z(error: float, sigma: float) -> float | None:
+    """An error in units of its reported 1-sigma (None when the sigma is unknown or zero)."""
+    return error / sigma if sigma and math.isfinite(sigma) else None
+
+
 def _summaries(rows: list[dict], total: int) -> dict:
     metrics, skipped = {}, []
 
@@ -156,6 +164,12 @@ def _summaries(rows: list[dict], total: int) -> dict:
             metrics[f"{name}_deg"] = summarize(np.array(values))
         else:
             skipped.append(f"{name}: no ground truth in this dataset")
+        z = np.array(column(f"left_{name}_z") + column(f"right_{name}_z"))
+        if z.size:
+            # honest sigmas hold 68 % of the errors within 1 sigma; the 68th percentile of error/sigma is
+            # the factor that would make them so
+            metrics[f"{name}_sigma"] = {"within_1_sigma": float(np.mean(z <= 1)),
+                                        "scale_for_68": float(np.percentile(z, 68.27))}  # fmt: skip
     focal = column("left_focal_error_rel") + column("right_focal_error_rel")
     if focal:
         metrics["focal_rel"] = {"median": float(np.median(focal)), "mean": float(np.mean(focal))}

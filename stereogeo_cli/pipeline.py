@@ -78,6 +78,10 @@ class Calibrator:
         self.conf = {**default_conf, **(conf or {})}
         self.model_path = Path(model_path) if model_path is not None else default_model_path()
         self.network = FieldNetwork(self.model_path, threads=threads)
+        # The refiner's sigmas treat field cells as independent; a network's errors are correlated, and the
+        # model records how much to widen them (measured on validation data when it was exported).
+        inflation = float(self.network.metadata.get("sigma_inflation", 1.0))
+        self.conf["refine"] = {"sigma_inflation": inflation, **self.conf["refine"]}
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-matching")
 
     def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:

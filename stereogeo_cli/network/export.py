@@ -139,6 +139,7 @@ def export_onnx(
     parity_sizes: Sequence[tuple[int, int]] = DEFAULT_PARITY_SIZES,
     atol: float = 1e-4,
     opset: int = OPSET,
+    extra_metadata: dict[str, str] | None = None,
 ) -> dict[str, Any]:
     """Export a model (a StereoGeoNet, a checkpoint dict or a checkpoint file) to one ONNX file.
 
@@ -166,6 +167,7 @@ def export_onnx(
         int(checkpoint.get("step", 0)),
         int(checkpoint.get("input_short_side", INPUT_SHORT_SIDE)),  # the size the model was trained at
     )
+    metadata.update({k: str(v) for k, v in (extra_metadata or {}).items()})
     size_left, size_right = parity_sizes[0], parity_sizes[-1]
     generator = torch.Generator().manual_seed(0)  # leaves the caller's (e.g. training's) RNG untouched
     example = (
