@@ -1,0 +1,72 @@
+"""`stereogeo evaluate` on a small rendered dataset: metrics present, missing ground truth skipped."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from stereogeo_cli.cli import app
+from stereogeo_cli.metrics import auc, summarize
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    from stereogeo_cli.synth.config import SynthConfig
+    from stereogeo_cli.synth.dataset import make_dataset
+
+    folder = tmp_path_factory.mktemp("eval") / "set"
+    make_dataset(folder, 3, 21, SynthConfig(short_side=240, panorama_share=0.0), workers=1, progress=False)
+    return folder
+
+
+def test_auc_is_the_area_under_the_recall_curve():
+    assert auc([0.5, 2.0, 20.0], (1.0,))[0] == pytest.approx(0.25)  # (0,0)→(0.5,1/3), flat to 1°
+    assert auc(np.zeros(5)) == [1.0, 1.0, 1.0]
+    assert auc(np.full(4, 50.0)) == [0.0, 0.0, 0.0]
+    s = summarize(np.array([1.0, 2.0, 3.0]))
+    assert s["median"] == 2.0 and s["mean"] == 2.0 and 0 < s["auc@5"] < 1
+
+
+def test_evaluate_json_reports_the_papers_metrics(dataset, onnx_model):
+    result = CliRunner().invoke(
+        app, ["evaluate", str(dataset), "--json", "--baselines", "--model", str(onnx_model)]
+    )
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    metrics = report["metrics"]
+    for key in ("roll_deg", "pitch_deg", "vfov_deg"):
+        assert set(metrics[key]) >= {"median", "mean", "auc@1", "auc@5", "auc@10"}
+    for key in (
+        "rotation_error_deg",
+        "direction_error_deg",
+        "translation_error_m",
+        "sift+essential_rotation_error_deg",
+    ):
+        assert set(metrics[key]) >= {"median", "mean", "std"}
+    assert metrics["pairs"] == {"evaluated": 3, "total": 3}
+    assert len(report["pairs"]) == 3 and report["skipped"] == []
+    # a sanity bound for the baseline's conventions (a flipped R or T, or a wrong K, gives tens of degrees);
+    # three small renders are too few for an accuracy figure
+    assert metrics["sift+essential_rotation_error_deg"]["median"] < 10.0
+
+
+def test_missing_ground_truth_is_skipped_and_said(dataset, onnx_model, tmp_path):
+    copy = tmp_path / "nogravity"
+    shutil.copytree(dataset, copy)
+    lines = [json.loads(line) for line in (copy / "calib.jsonl").read_text().splitlines()]
+    for record in lines:
+        record["left"]["gravity_up"] = record["right"]["gravity_up"] = None
+        record["R"] = record["T"] = None
+    (copy / "calib.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    result = CliRunner().invoke(app, ["evaluate", str(copy), "--model", str(onnx_model)])
+    assert result.exit_code == 0, result.output
+    assert "skipped: roll: no ground truth" in result.stdout
+    assert "skipped: relative pose: no ground truth" in result.stdout
+
+
+def test_not_a_dataset_is_exit_2(tmp_path, onnx_model):
+    result = CliRunner().invoke(app, ["evaluate", str(tmp_path), "--model", str(onnx_model)])
+    assert result.exit_code == 2
+    assert "is not a dataset folder" in result.stderr
