@@ -1,0 +1,35 @@
+"""Validation metrics of a checkpoint, as training logs them, on a whole validation set.
+
+    python benchmarks/validate_model.py CHECKPOINT VAL_DIR [--count N]
+
+The network alone (no feature matches): per-camera roll, pitch and vFoV errors through the NumPy refiner
+(median, mean, AUC@1/5/10 in degrees), and the pose head's median rotation error (degrees) and
+translation error (share of the baseline). This is what the model card reports.
+"""
+
+import argparse
+import json
+
+import torch
+
+from stereogeo_cli.network.checkpoint import load_checkpoint
+from stereogeo_cli.network.data import FolderPairs
+from stereogeo_cli.network.train import validate
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("checkpoint")
+    parser.add_argument("val")
+    parser.add_argument("--count", type=int, default=300)
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    model, checkpoint = load_checkpoint(args.checkpoint)
+    short_side = int(checkpoint.get("input_short_side", 224))
+    metrics = validate(model, FolderPairs(args.val), args.count, short_side)
+    print(json.dumps({"step": checkpoint.get("step"), "pairs": args.count, **metrics}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
