@@ -69,7 +69,7 @@ def _undistort(points: np.ndarray, cam: dict) -> np.ndarray:
     return cv2.undistortPoints(points.reshape(-1, 1, 2), K, D, P=K).reshape(-1, 2)
 
 
-def _baseline_pose(left, right, record, matcher: Callable) -> tuple[float, float] | None:
+def _baseline_pose(left, right, record, matcher: Callable) -> tuple[float, float | None] | None:
     """(rotation error, direction error) in degrees of matches + essential matrix with the GT intrinsics."""
     m = matcher(left, right)
     if len(m) == 0:
@@ -80,10 +80,11 @@ def _baseline_pose(left, right, record, matcher: Callable) -> tuple[float, float
     if pose is None:
         return None
     R, t, _ = pose
-    return (
-        math.degrees(rotation_error(R, np.asarray(record["R"]))),
-        _direction_error_deg(t, np.asarray(record["T"], dtype=float)),
-    )
+    T = np.asarray(record["T"], dtype=float)
+    direction = (
+        _direction_error_deg(t, T) if np.linalg.norm(T) > 1e-9 else None
+    )  # pure rotation: no direction
+    return math.degrees(rotation_error(R, np.asarray(record["R"]))), direction
 
 
 BASELINES = {

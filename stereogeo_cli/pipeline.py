@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -52,6 +52,18 @@ class CalibrationResult:
     def report(self) -> dict:
         """The JSON report (DESIGN §3), with the pose's provenance and any warnings."""
         return self.calibration.to_report()
+
+
+def _with_focal(fit: CameraFit, scale: float, sigma_rel: float | None) -> CameraFit:
+    """A fit with its focal multiplied by ``scale`` and, if given, a new relative 1-sigma."""
+    if scale == 1.0 and sigma_rel is None:
+        return fit
+    focal = fit.focal_px * scale
+    rel = fit.sigma["focal_px"] / fit.focal_px if sigma_rel is None else sigma_rel
+    dvfov_dlogf = fit.height * focal / (focal * focal + fit.height * fit.height / 4.0)
+    sigma = {**fit.sigma, "focal_px": focal * rel, "vfov_deg": math.degrees(dvfov_dlogf * rel)}
+    vfov = math.degrees(2 * math.atan(fit.height / (2 * focal)))
+    return replace(fit, focal_px=focal, vfov_deg=vfov, sigma=sigma)
 
 
 def _timed(function, *args):
@@ -154,9 +166,18 @@ class Calibrator:
             gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
             gravity_sigma_rad=max(gravity_sigma, 1e-4) if math.isfinite(gravity_sigma) else None,
             prior_R=net.rotation, prior_t=net.translation, conf=self.conf["fuse"],
+            focal_sigma_rel=(
+                None if focal_left is not None else fit_left.sigma["focal_px"] / fit_left.focal_px,
+                None if focal_right is not None else fit_right.sigma["focal_px"] / fit_right.focal_px,
+            ),
         )  # fmt: skip
         timing["fusion"] = (time.perf_counter() - tick) * 1e3
         warnings.extend(pose.notes)
+        # the matches refine the focal lengths too (their ratio always; more where the cameras rotate)
+        fit_left = _with_focal(fit_left, pose.focal_scale[0], pose.focal_sigma_rel[0])
+        fit_right = _with_focal(fit_right, pose.focal_scale[1], pose.focal_sigma_rel[1])
+        K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
+        K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
 
         if baseline_m is not None:
             baseline, scale_source = float(baseline_m), "baseline"

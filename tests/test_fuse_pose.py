@@ -79,7 +79,7 @@ def test_gravity_coupling_helps_with_few_matches():
     assert np.median(with_g) < np.median(without_g)
 
 
-def test_too_few_matches_falls_back_to_the_pose_head_made_consistent_with_gravity():
+def test_too_few_matches_falls_back_to_the_pose_head_pulled_towards_gravity():
     rng = np.random.default_rng(42)
     K = intrinsic_matrix(500, 640, 480)
     R, T = _rig(rng)
@@ -91,8 +91,16 @@ def test_too_few_matches_falls_back_to_the_pose_head_made_consistent_with_gravit
     )  # fmt: skip
     assert pose.source == "pose_head"
     assert "too few matches" in pose.notes[0]
-    np.testing.assert_allclose(pose.R @ g_left, R @ g_left, atol=1e-12)
+    # gravity known to 0.57° against the head's 5°: nearly all of the way to R·g_left = g_right
+    before = gravity_angle(prior_R @ g_left, R @ g_left)
+    assert gravity_angle(pose.R @ g_left, R @ g_left) < 0.02 * before
     assert rotation_error(pose.R, R) < rotation_error(prior_R, R)
+    # gravity as uncertain as the head: half of the way
+    half = fuse_relative_pose(
+        _matches(rng, K, K, R, T, count=8), K, K, gravity_left=g_left, gravity_right=R @ g_left,
+        gravity_sigma_rad=np.radians(5.0), prior_R=prior_R, prior_t=T,
+    )  # fmt: skip
+    assert gravity_angle(half.R @ g_left, R @ g_left) == pytest.approx(0.5 * before, rel=1e-6)
     np.testing.assert_allclose(pose.t_direction, T / np.linalg.norm(T))
     with pytest.raises(ValueError, match="too few matches"):
         fuse_relative_pose(Matches(np.zeros((3, 2)), np.zeros((3, 2))), K, K)
