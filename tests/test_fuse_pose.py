@@ -104,3 +104,24 @@ def test_too_few_matches_falls_back_to_the_pose_head_pulled_towards_gravity():
     np.testing.assert_allclose(pose.t_direction, T / np.linalg.norm(T))
     with pytest.raises(ValueError, match="too few matches"):
         fuse_relative_pose(Matches(np.zeros((3, 2)), np.zeros((3, 2))), K, K)
+
+
+def test_focal_ratio_is_refined_with_the_pose():
+    """A 10 % error in one focal length: the matches recover the ratio, the rotation stays sub-degree."""
+    rng = np.random.default_rng(43)
+    K_left, K_right = intrinsic_matrix(500, 640, 480), intrinsic_matrix(560, 640, 480)
+    ratio_errors, fixed, refined = [], [], []
+    for _ in range(8):
+        R, T = _rig(rng)
+        m = _matches(rng, K_left, K_right, R, T, noise_px=0.5, outliers=0.1)
+        wrong_right = intrinsic_matrix(560 * 1.1, 640, 480)
+        prior = {"prior_R": R, "prior_t": T}
+        a = fuse_relative_pose(m, K_left, wrong_right, **prior)
+        b = fuse_relative_pose(m, K_left, wrong_right, focal_sigma_rel=(0.1, 0.1), **prior)
+        estimated = (560 * 1.1 * b.focal_scale[1]) / (500 * b.focal_scale[0])
+        ratio_errors.append(abs(estimated / (560 / 500) - 1))
+        fixed.append(rotation_error(a.R, R))
+        refined.append(rotation_error(b.R, R))
+        assert a.focal_scale == (1.0, 1.0)
+    assert np.median(ratio_errors) < 0.01
+    assert np.median(refined) < np.median(fixed)

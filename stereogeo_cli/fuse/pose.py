@@ -46,7 +46,6 @@ class RelativePose:
     sigma_direction_deg: float = float("inf")
     gravity_error_deg: float | None = None  # angle between R·g_left and g_right after the fusion
     focal_scale: tuple[float, float] = (1.0, 1.0)  # refined focal / given focal, per camera
-    focal_sigma_rel: tuple[float | None, float | None] = (None, None)  # relative 1-sigma after the fusion
     notes: list[str] = field(default_factory=list)
 
     def translation(self, baseline_m: float) -> np.ndarray:
@@ -133,10 +132,9 @@ def fuse_relative_pose(
         gravity_left, gravity_right: up vectors [3] of each camera, with ``gravity_sigma_rad`` the 1-sigma
             of the angle between R·g_left and g_right expected from their errors (both cameras').
         prior_R, prior_t: the pose head's rotation [3 x 3] and translation [3] (any scale), or None.
-        focal_sigma_rel: the relative 1-sigma of each camera's focal length in K; a camera with a sigma
-            has its focal refined with the pose (the matches constrain the focal ratio and, with rotation
-            between the cameras, the focals), None holds it fixed. The result's ``focal_scale`` says by
-            how much each focal moved.
+        focal_sigma_rel: the relative 1-sigma of each camera's focal length in K (None: known, held).
+            The ratio of the two focals is refined with the pose, each camera taking a share of the
+            correction in proportion to its variance; ``focal_scale`` in the result says how far each moved.
     Returns:
         A :class:`RelativePose`. With enough matches: the essential-matrix pose refined on its inliers
         (robust Sampson error) with soft gravity coupling (R·g_left = g_right) and the pose head as a
@@ -169,9 +167,10 @@ def fuse_relative_pose(
         )  # fmt: skip
 
     R0, t0, mask0 = initial
-    focal_sigmas = tuple(
-        None if (s_ is None or not np.isfinite(s_) or s_ <= 0) else float(s_) for s_ in focal_sigma_rel
-    )
+    # Only the ratio of the two focal lengths is refined with the pose: the matches fix it well on any rig,
+    # while the absolute focal is unobservable on near-parallel rigs and absorbs lens distortion.
+    var = [0.0 if (v is None or not np.isfinite(v) or v <= 0) else float(v) ** 2 for v in focal_sigma_rel]
+    split = None if sum(var) <= 0 else (var[0] / sum(var), var[1] / sum(var), float(np.sqrt(sum(var))))
     priors = _Priors(
         gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad, prior_R, prior_t,
         np.radians(conf["prior_rotation_sigma_deg"]), np.radians(conf["prior_direction_sigma_deg"]),
@@ -188,19 +187,18 @@ def fuse_relative_pose(
             starts.append((R_p, t_p))  # a second start only where it could lead elsewhere
     best = None
     for R, t in starts:
-        mask, scales = mask0, np.zeros(2)
+        mask, d = mask0, 0.0
         # two rounds: refine on the inliers, re-select the inliers among all matches, refine again
         for _ in range(2):
-            R, t, scales, H = _refine_pose(
-                R, t, scales, matches.left[mask], matches.right[mask], K_left, K_right, noise, priors,
-                focal_sigmas, conf,
-            )  # fmt: skip
+            R, t, d, H, scales = _refine_pose(
+                R, t, d, matches.left[mask], matches.right[mask], K_left, K_right, noise, priors, split, conf
+            )
             K_l, K_r = _scaled(K_left, scales[0]), _scaled(K_right, scales[1])
             errors = sampson_errors(fundamental_matrix(K_l, K_r, R, t), matches.left, matches.right)
             mask = np.abs(errors) < max(3.0 * noise, conf["ransac_threshold_px"])
         if _in_front_share(R, t, matches.left[mask], matches.right[mask], K_l, K_r) < 0.5:
             t = -t  # the epipolar error cannot tell t from -t; the points must lie in front of the cameras
-        focal_terms = sum((scales[i] / focal_sigmas[i]) ** 2 for i in range(2) if focal_sigmas[i] is not None)
+        focal_terms = 0.0 if split is None else (d / split[2]) ** 2
         score = float(
             np.sum(np.minimum((errors / noise) ** 2, 9.0)) + np.sum(priors.residuals(R, t) ** 2) + focal_terms
         )
@@ -208,15 +206,12 @@ def fuse_relative_pose(
             best = (score, R, t, scales, H, mask)
     _, R, t, scales, H, inlier_mask = best
     cov = np.linalg.inv(H)
-    focal_sigma_rel = [None, None]
-    for k, i in enumerate(i for i in range(2) if focal_sigmas[i] is not None):
-        focal_sigma_rel[i] = float(np.sqrt(cov[5 + k, 5 + k]))
     return RelativePose(
         R=R, t_direction=t, source="matches", matches_found=found, inliers=int(inlier_mask.sum()),
         sigma_rotation_deg=float(np.degrees(np.sqrt(np.trace(cov[:3, :3])))),
         sigma_direction_deg=float(np.degrees(np.sqrt(np.trace(cov[3:5, 3:5])))),
         focal_scale=(float(np.exp(scales[0])), float(np.exp(scales[1]))),
-        focal_sigma_rel=(focal_sigma_rel[0], focal_sigma_rel[1]),
+
         gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
         notes=notes,
     )  # fmt: skip
@@ -264,54 +259,57 @@ def _scaled(K: np.ndarray, log_scale: float) -> np.ndarray:
     return K
 
 
-def _refine_pose(R, t, scales, left, right, K_left, K_right, noise_px, priors: _Priors, focal_sigmas, conf):
-    """LM on (rotation update [3], direction tangent [2], and the log focal scale of each camera whose
-    ``focal_sigmas`` entry is not None): robust Sampson errors in units of the match noise, plus the soft
-    gravity coupling, the pose-head prior and the refiner's focal lengths, in units of their sigmas."""
-    free_focal = [i for i, sigma in enumerate(focal_sigmas) if sigma is not None]
-    n_params = 5 + len(free_focal)
+def _refine_pose(R, t, d, left, right, K_left, K_right, noise_px, priors: _Priors, split, conf):
+    """LM on (rotation update [3], direction tangent [2], and with ``split`` the log focal ratio d):
+    robust Sampson errors in units of the match noise, plus the soft gravity coupling, the pose-head
+    prior and the refiner's focal ratio, in units of their sigmas.
 
-    def residuals(R_, t_, s_):
-        F = fundamental_matrix(_scaled(K_left, s_[0]), _scaled(K_right, s_[1]), R_, t_)
-        focal = [s_[i] / focal_sigmas[i] for i in free_focal]
-        return np.concatenate([sampson_errors(F, left, right) / noise_px, priors.residuals(R_, t_), focal])
+    ``split`` = (w_left, w_right, sigma_d): the left focal is scaled by exp(w_left·d) and the right one
+    by exp(-w_right·d), so each camera takes its share of a ratio correction.
+    """
+    n_params = 5 if split is None else 6
 
-    def moved(R_, t_, s_, delta):
-        s_new = np.array(s_, dtype=float)
-        for k, i in enumerate(free_focal):
-            s_new[i] += delta[5 + k]
+    def log_scales(d_):
+        return (0.0, 0.0) if split is None else (split[0] * d_, -split[1] * d_)
+
+    def residuals(R_, t_, d_):
+        s_l, s_r = log_scales(d_)
+        F = fundamental_matrix(_scaled(K_left, s_l), _scaled(K_right, s_r), R_, t_)
+        ratio = [] if split is None else [d_ / split[2]]
+        return np.concatenate([sampson_errors(F, left, right) / noise_px, priors.residuals(R_, t_), ratio])
+
+    def moved(R_, t_, d_, delta):
         return (
             rotation_from_axis_angle(delta[:3]) @ R_,
             retract_on_sphere(t_, delta[3:5], tangent_basis(t_)),
-            s_new,
+            d_ + (delta[5] if split is not None else 0.0),
         )
 
     n_data = len(left)
     huber_k = conf["sampson_scale_px"] / noise_px  # Huber threshold in units of the noise
     lam, eps = 1e-3, 1e-7
     H = np.eye(n_params)
-    scales = np.array(scales, dtype=float)
     for _ in range(conf["iterations"]):
-        r = residuals(R, t, scales)
+        r = residuals(R, t, d)
         w = np.ones_like(r)
         data_abs = np.abs(r[:n_data])
         w[:n_data] = np.where(data_abs <= huber_k, 1.0, huber_k / np.maximum(data_abs, 1e-12))
         J = np.empty((len(r), n_params))
         for i in range(n_params):
-            d = np.zeros(n_params)
-            d[i] = eps
-            J[:, i] = (residuals(*moved(R, t, scales, d)) - residuals(*moved(R, t, scales, -d))) / (2 * eps)
+            e = np.zeros(n_params)
+            e[i] = eps
+            J[:, i] = (residuals(*moved(R, t, d, e)) - residuals(*moved(R, t, d, -e))) / (2 * eps)
         H = J.T @ (J * w[:, None])
         step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), J.T @ (w * r))
-        R_new, t_new, s_new = moved(R, t, scales, step)
-        r_new = residuals(R_new, t_new, s_new)
+        R_new, t_new, d_new = moved(R, t, d, step)
+        r_new = residuals(R_new, t_new, d_new)
         cost, new_cost = float(np.sum(w * r * r)), float(np.sum(w * r_new * r_new))
         if new_cost < cost:
-            R, t, scales, lam = R_new, t_new, s_new, lam * 0.1
+            R, t, d, lam = R_new, t_new, d_new, lam * 0.1
             if cost - new_cost < 1e-6 * cost or np.linalg.norm(step) < 1e-10:
                 break
         else:
             lam *= 10
             if lam > 1e6:
                 break
-    return R, t, scales, H
+    return R, t, d, H, log_scales(d)
