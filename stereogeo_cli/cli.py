@@ -420,6 +420,9 @@ def evaluate(
             "--baselines", help="Also run ORB and SIFT + essential matrix with the true intrinsics."
         ),
     ] = False,
+    plot: Annotated[
+        Path | None, typer.Option(help="Draw the cumulative error curves (up to 10°) into this PNG file.")
+    ] = None,
     model: Annotated[Path | None, typer.Option(help="The ONNX model (default: the shipped one).")] = None,
     threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core).")] = 0,
 ) -> None:
@@ -432,6 +435,8 @@ def evaluate(
         from stereogeo_cli.evaluate import evaluate_dataset, read_dataset
         from stereogeo_cli.pipeline import Calibrator
 
+        if plot is not None:
+            _check_output_folder(plot.parent)
         total = len(read_dataset(dataset))
         calibrator = Calibrator(model, threads=threads)
         with Progress(transient=True, disable=not sys.stderr.isatty(), console=_stderr_console()) as bar:
@@ -439,6 +444,10 @@ def evaluate(
             results = evaluate_dataset(
                 dataset, calibrator, baselines=baselines, progress=lambda: bar.advance(task)
             )
+        if plot is not None:
+            from stereogeo_cli.evaluate import plot_error_cdfs
+
+            plot_error_cdfs(results, plot)
     except StereoGeoError as error:
         raise fail(error) from None
     except Exception as error:  # noqa: BLE001

@@ -186,3 +186,62 @@ def _summaries(rows: list[dict], total: int) -> dict:
         skipped.append("relative pose: no ground truth R, T in this dataset")
     metrics["pairs"] = {"evaluated": len(rows), "total": total}
     return {"metrics": metrics, "skipped": skipped}
+
+
+_PLOT_SERIES = (
+    ("roll_error_deg", "roll", (31, 119, 180)),
+    ("pitch_error_deg", "pitch", (255, 127, 14)),
+    ("vfov_error_deg", "vFoV", (44, 160, 44)),
+    ("rotation_error_deg", "rotation R", (214, 39, 40)),
+    ("sift+essential_rotation_error_deg", "SIFT+E (true K): R", (148, 103, 189)),
+)
+
+
+def plot_error_cdfs(results: dict, path: str | Path, max_error: float = 10.0) -> Path:
+    """Draw the cumulative error curves (share of errors ≤ x, x in degrees up to ``max_error``) as a PNG."""
+    from stereogeo_cli.io.atomic import write_files_atomically
+
+    width, height, margin = 900, 540, 70
+    canvas = np.full((height, width, 3), 255, np.uint8)
+    x0, y0, x1, y1 = margin, height - margin, width - 30, 40
+
+    def to_px(x: float, y: float) -> tuple[int, int]:
+        return round(x0 + (x1 - x0) * x / max_error), round(y0 - (y0 - y1) * y)
+
+    for i in range(11):
+        cv2.line(canvas, to_px(i * max_error / 10, 0), to_px(i * max_error / 10, 1), (225, 225, 225), 1)
+        cv2.line(canvas, to_px(0, i / 10), to_px(max_error, i / 10), (225, 225, 225), 1)
+        cv2.putText(canvas, f"{i * max_error / 10:g}", (to_px(i * max_error / 10, 0)[0] - 8, y0 + 22),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)  # fmt: skip
+        cv2.putText(canvas, f"{i * 10}%", (12, to_px(0, i / 10)[1] + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+                    (0, 0, 0), 1, cv2.LINE_AA)  # fmt: skip
+    cv2.rectangle(canvas, (x0, y1), (x1, y0), (0, 0, 0), 1)
+    cv2.putText(canvas, "error (degrees)", (width // 2 - 60, height - 18), cv2.FONT_HERSHEY_SIMPLEX, 0.55,
+                (0, 0, 0), 1, cv2.LINE_AA)  # fmt: skip
+    legend_y = y1 + 20
+    for key, label, colour in _PLOT_SERIES:
+        values = [
+            r[k]
+            for r in results["pairs"]
+            for k in (f"left_{key}", f"right_{key}", key)
+            if r.get(k) is not None
+        ]
+        if not values:
+            continue
+        errors = np.sort(np.asarray(values, dtype=float))
+        recall = np.arange(1, len(errors) + 1) / len(errors)
+        points = [to_px(0, 0)] + [
+            to_px(min(e, max_error), r) for e, r in zip(errors, recall, strict=True) if e <= max_error
+        ]
+        if len(points) > 1:
+            cv2.polylines(canvas, [np.array(points, np.int32)], False, colour[::-1], 2, cv2.LINE_AA)
+        cv2.line(canvas, (x1 - 230, legend_y - 5), (x1 - 200, legend_y - 5), colour[::-1], 3)
+        cv2.putText(canvas, f"{label} ({len(errors)})", (x1 - 192, legend_y), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                    (0, 0, 0), 1, cv2.LINE_AA)  # fmt: skip
+        legend_y += 22
+    ok, data = cv2.imencode(".png", canvas)
+    if not ok:
+        raise RuntimeError("PNG encoding of the plot failed")
+    path = Path(path)
+    write_files_atomically(path.parent, {path.name: data.tobytes()})
+    return path
