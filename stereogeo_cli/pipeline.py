@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -52,18 +52,6 @@ class CalibrationResult:
     def report(self) -> dict:
         """The JSON report (DESIGN §3), with the pose's provenance and any warnings."""
         return self.calibration.to_report()
-
-
-def _with_focal(fit: CameraFit, scale: float) -> CameraFit:
-    """A fit with its focal multiplied by ``scale`` (the relative 1-sigma kept)."""
-    if scale == 1.0:
-        return fit
-    focal = fit.focal_px * scale
-    rel = fit.sigma["focal_px"] / fit.focal_px
-    dvfov_dlogf = fit.height * focal / (focal * focal + fit.height * fit.height / 4.0)
-    sigma = {**fit.sigma, "focal_px": focal * rel, "vfov_deg": math.degrees(dvfov_dlogf * rel)}
-    vfov = math.degrees(2 * math.atan(fit.height / (2 * focal)))
-    return replace(fit, focal_px=focal, vfov_deg=vfov, sigma=sigma)
 
 
 def _timed(function, *args):
@@ -174,8 +162,8 @@ class Calibrator:
         timing["fusion"] = (time.perf_counter() - tick) * 1e3
         warnings.extend(pose.notes)
         # the matches refine the focal lengths too (their ratio always; more where the cameras rotate)
-        fit_left = _with_focal(fit_left, pose.focal_scale[0])
-        fit_right = _with_focal(fit_right, pose.focal_scale[1])
+        fit_left = fit_left.with_focal(fit_left.focal_px * pose.focal_scale[0])
+        fit_right = fit_right.with_focal(fit_right.focal_px * pose.focal_scale[1])
         K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
         K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
 

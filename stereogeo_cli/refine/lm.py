@@ -54,25 +54,25 @@ class CameraFit:
     converged: bool
     history: list[float] = field(default_factory=list)  # cost after every accepted step
 
+    def with_focal(self, focal: float, width: int | None = None, height: int | None = None) -> CameraFit:
+        """This fit with another focal (and image size), its vFoV recomputed and its relative sigma kept."""
+        width, height = width or self.width, height or self.height
+        rel_sigma = self.sigma["focal_px"] / self.focal_px
+        sigma = {
+            **self.sigma,
+            "focal_px": focal * rel_sigma,
+            "vfov_deg": _vfov_sigma_deg(focal, height, rel_sigma),
+        }
+        vfov = float(np.degrees(vfov_from_focal(focal, height)))
+        return replace(self, width=width, height=height, focal_px=focal, vfov_deg=vfov, sigma=sigma)
+
     def in_original_pixels(self, rc: ResizeCrop) -> CameraFit:
         """This fit, made on a resized and cropped image (e.g. the network input), in the original's pixels.
 
         Roll and pitch are unchanged (the crop keeps the principal point at the centre); the focal scales
         by the resize; the vFoV is recomputed for the original height (a crop changes it).
         """
-        width, height = rc.in_size
-        focal = rc.focal_to_input(self.focal_px)
-        rel_sigma = self.sigma["focal_px"] / self.focal_px
-        dvfov_dlogf = height * focal / (focal * focal + height * height / 4.0)
-        sigma = {
-            **self.sigma,
-            "focal_px": focal * rel_sigma,
-            "vfov_deg": float(np.degrees(dvfov_dlogf * rel_sigma)),
-        }
-        return replace(
-            self, width=width, height=height, focal_px=focal,
-            vfov_deg=float(np.degrees(vfov_from_focal(focal, height))), sigma=sigma,
-        )  # fmt: skip
+        return self.with_focal(rc.focal_to_input(self.focal_px), *rc.in_size)
 
     def to_dict(self) -> dict:
         return {
@@ -88,6 +88,11 @@ class CameraFit:
             "iterations": self.iterations,
             "converged": self.converged,
         }
+
+
+def _vfov_sigma_deg(focal: float, height: float, log_focal_sigma: float) -> float:
+    """1-sigma of the vFoV in degrees from that of log f: |d vFoV / d log f| = h·f / (f² + h²/4)."""
+    return float(np.degrees(height * focal / (focal * focal + height * height / 4.0) * log_focal_sigma))
 
 
 def huber(s: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
@@ -400,11 +405,10 @@ def refine_camera(
 
     roll, pitch = roll_pitch_from_gravity(g)
     f = float(np.exp(log_f))
-    dvfov_dlogf = -height * f / (f * f + height * height / 4.0)
     sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
     sigma = {
         "focal_px": float(f * sig[2]),
-        "vfov_deg": float(np.degrees(abs(dvfov_dlogf) * sig[2])),
+        "vfov_deg": _vfov_sigma_deg(f, height, sig[2]),
         "roll_deg": float(np.degrees(sig[1] / max(np.cos(pitch), 1e-9))),
         "pitch_deg": float(np.degrees(sig[0])),
     }
