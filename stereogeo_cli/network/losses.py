@@ -10,6 +10,7 @@ import torch
 import torch.nn.functional as F
 
 from stereogeo_cli.network.model import OUTPUT_STRIDE
+from stereogeo_cli.network.runtime import cell_pixel_coordinates
 from stereogeo_cli.refine import initial_estimate
 from stereogeo_cli.refine.torch_twin import refine_batch
 
@@ -29,9 +30,9 @@ default_conf = {
 
 
 def cell_centres(height: int, width: int, stride: int = OUTPUT_STRIDE) -> tuple[torch.Tensor, torch.Tensor]:
-    """Pixel centres (x, y) [h x w] of the network's field cells (cell j covers x = s·j + (s-1)/2)."""
-    ys, xs = torch.meshgrid(torch.arange(height // stride), torch.arange(width // stride), indexing="ij")
-    return xs * stride + (stride - 1) / 2, ys * stride + (stride - 1) / 2
+    """Pixel centres (x, y) [h x w] of the field cells of an image (height x width), as float32 tensors."""
+    x, y = cell_pixel_coordinates(height // stride, width // stride, stride)
+    return torch.from_numpy(x).float(), torch.from_numpy(y).float()
 
 
 def ground_truth_fields(gravity: torch.Tensor, focal: torch.Tensor, width: int, height: int):

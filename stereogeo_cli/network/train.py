@@ -25,7 +25,7 @@ from stereogeo_cli.network.checkpoint import load_checkpoint, save_checkpoint
 from stereogeo_cli.network.data import TRAIN_SIZES, FolderPairs, RenderedPairs, SizedBatches, TrainingPairs
 from stereogeo_cli.network.losses import compute_losses
 from stereogeo_cli.network.losses import default_conf as loss_defaults
-from stereogeo_cli.network.model import StereoGeoNet
+from stereogeo_cli.network.model import OUTPUT_STRIDE, StereoGeoNet
 
 SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
     "data": ([], "Dataset folders (left/, right/, calib.jsonl) to train on."),
@@ -154,7 +154,7 @@ def validate(model: StereoGeoNet, val: FolderPairs, count: int, short_side: int)
             fit = refine_camera(
                 out[f"{view}_up"].transpose(1, 2, 0), out[f"{view}_latitude"],
                 out[f"{view}_up_confidence"], out[f"{view}_latitude_confidence"],
-                image_size=rc.out_size, pixel_xy=cell_pixel_coordinates(h, w, 4),
+                image_size=rc.out_size, pixel_xy=cell_pixel_coordinates(h, w, OUTPUT_STRIDE),
             )  # fmt: skip
             fit = fit.in_original_pixels(rc)
             roll, pitch = np.degrees(roll_pitch_from_gravity(np.asarray(cam["gravity_up"])))
