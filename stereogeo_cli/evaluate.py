@@ -145,7 +145,12 @@ def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False,
         per_pair.append(row)
         if progress:
             progress()
-    return {"dataset": str(folder), "pairs": per_pair, "failed": failed, **_summaries(per_pair, len(records))}
+    return {
+        "dataset": str(folder),
+        "pairs": per_pair,
+        "failed": failed,
+        **_summaries(per_pair, len(records), len(failed)),
+    }
 
 
 def _z(error: float, sigma: float) -> float | None:
@@ -153,7 +158,7 @@ def _z(error: float, sigma: float) -> float | None:
     return error / sigma if sigma and math.isfinite(sigma) else None
 
 
-def _summaries(rows: list[dict], total: int) -> dict:
+def _summaries(rows: list[dict], total: int, failed: int = 0) -> dict:
     metrics, skipped = {}, []
 
     def column(key):
@@ -162,7 +167,10 @@ def _summaries(rows: list[dict], total: int) -> dict:
     for name in ("roll", "pitch", "vfov"):
         values = column(f"left_{name}_error_deg") + column(f"right_{name}_error_deg")
         if values:
-            metrics[f"{name}_deg"] = summarize(np.array(values))
+            # As GeoCalib's evaluation: the recall held flat below 1°, and a failed pair (both cameras)
+            # counts as never recalled in the AUCs (medians and means are over the calibrated pairs).
+            values += [math.inf] * (2 * failed)
+            metrics[f"{name}_deg"] = summarize(np.array(values), min_error=1.0)
         else:
             skipped.append(f"{name}: no ground truth in this dataset")
         z = np.array(column(f"left_{name}_z") + column(f"right_{name}_z"))

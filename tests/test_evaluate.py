@@ -29,6 +29,23 @@ def test_auc_is_the_area_under_the_recall_curve():
     assert s["median"] == 2.0 and s["mean"] == 2.0 and 0 < s["auc@5"] < 1
 
 
+def test_auc_held_flat_below_one_degree_as_geocalib():
+    """GeoCalib's variant: below min_error the curve is held at the recall of min_error."""
+    errors = [0.2, 0.5, 2.0, 20.0]
+    a1, a5 = auc(errors, (1.0, 5.0), min_error=1.0)
+    assert a1 == pytest.approx(0.5)  # share of errors ≤ 1°, whatever their values below 1°
+    # 0→1° at 0.5, 1°→2° trapezoid 0.5→0.75, 2°→5° at 0.75: (0.5 + 0.625 + 2.25) / 5
+    assert a5 == pytest.approx((0.5 + 0.625 + 2.25) / 5)
+    assert auc([0.01, 0.9], (1.0,), min_error=1.0) == auc([0.5, 0.99], (1.0,), min_error=1.0) == [1.0]
+    # without it, errors below 1° lose area: 0.2 and 0.5 are rewarded differently
+    assert auc(errors, (1.0,))[0] < a1
+
+
+def test_failures_count_against_the_auc_but_not_the_median():
+    s = summarize(np.array([0.5, 0.5, np.inf, np.nan]), min_error=1.0)
+    assert s["median"] == 0.5 and s["auc@1"] == pytest.approx(0.5)
+
+
 def test_evaluate_json_reports_the_papers_metrics(dataset, onnx_model):
     result = CliRunner().invoke(
         app, ["evaluate", str(dataset), "--json", "--baselines", "--model", str(onnx_model)]

@@ -89,6 +89,24 @@ def test_quaternion_sign_is_fixed_and_gradients_flow():
         assert module.weight.grad.abs().sum() > 0
     assert model.latitude_head.out.weight.grad.abs().sum() > 0
     assert model.pose_head.mlp[0].weight.grad.abs().sum() > 0
+    assert model.pose_head.descriptor.weight.grad.abs().sum() > 0  # the soft matching is trained too
+
+
+def test_pose_head_soft_matching_reads_a_known_displacement():
+    """Right features = left features moved one stride-16 cell to the left: every left cell (but the first
+    column) must find its match 16 px to the left, i.e. a displacement of -16 / (half short side)."""
+    torch.manual_seed(0)
+    model = StereoGeoNet({"pretrained": False}).eval()
+    left = torch.randn(1, 112, 4, 6)
+    right = torch.roll(left, shifts=-1, dims=3)
+    with torch.no_grad():
+        model.pose_head.log_temperature.fill_(math.log(50.0))
+        corr = model.pose_head.correspondences(left, right)  # [1 x 24 x 9+context]
+    moved = corr[0].reshape(4, 6, -1)[:, 1:]
+    half_short = 4 * 16 / 2
+    torch.testing.assert_close(moved[..., 4], torch.full((4, 5), -16 / half_short), atol=0.02, rtol=0)
+    torch.testing.assert_close(moved[..., 5], torch.zeros(4, 5), atol=0.02, rtol=0)
+    assert (moved[..., 8] > 0.99).all()  # peak cosine similarity of an exact match
 
 
 def test_cell_coordinates_are_pixel_centre_correct():

@@ -70,3 +70,27 @@ def model_from_checkpoint(checkpoint: dict[str, Any]) -> StereoGeoNet:
     model = StereoGeoNet({**checkpoint["conf"], "pretrained": False})
     model.load_state_dict(checkpoint["model"], strict=True)
     return model.eval()
+
+
+def init_from_checkpoint(model: StereoGeoNet, path: str | os.PathLike) -> list[str]:
+    """Copy into ``model`` every tensor of the checkpoint at ``path`` whose name and shape match (fine-tuning
+    across a change of architecture, e.g. a new pose head). Returns the names of the model's parameters and
+    buffers left as they were, sorted; a checkpoint that shares nothing with the model raises."""
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise StereoGeoError(f"checkpoint not found: {path}") from None
+    except Exception as exc:  # torch raises many types for files that are not checkpoints
+        raise StereoGeoError(f"cannot read checkpoint {path}: {type(exc).__name__}") from None
+    if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get("model"), dict):
+        raise StereoGeoError(f"{path} is not a stereogeo checkpoint (no 'model' entry)")
+    own = model.state_dict()
+    taken = {
+        name: tensor
+        for name, tensor in checkpoint["model"].items()
+        if name in own and tuple(own[name].shape) == tuple(tensor.shape)
+    }
+    if not taken:
+        raise StereoGeoError(f"checkpoint {path} shares no weights with the model")
+    model.load_state_dict(taken, strict=False)
+    return sorted(set(own) - set(taken))

@@ -23,9 +23,10 @@ default_conf = {
     "refiner_steps": 5,  # unrolled LM steps of the torch twin during training
     "refiner_stride": 2,  # use every n-th field cell in each direction for the refiner
     "rotation_weight": 5.0,  # smooth L1 of the relative rotation angle (radians)
-    "translation_weight": 1.0,  # smooth L1 of T (metres), of T/|T| and of the angle between them
+    "translation_weight": 1.0,  # smooth L1 of log |T| ratio, of T/|T| and of the angle
     "rotation_beta": 0.01,  # where the smooth L1 turns from quadratic to linear, radians
-    "translation_beta": 0.02,  # the same for T (metres) and the direction terms
+    "translation_beta": 0.02,  # the same for the direction terms (T/|T| and the angle, radians)
+    "scale_beta": 0.05,  # the same for log(|T_pred| / |T_true|)
 }
 
 
@@ -151,8 +152,10 @@ def compute_losses(out: dict, batch: dict, conf: dict | None = None, with_refine
         d_hat, d_gt = F.normalize(t_hat, dim=-1), F.normalize(t_gt, dim=-1)
         cos = (d_hat * d_gt).sum(-1).clamp(-1 + 1e-7, 1 - 1e-7)
         beta = conf["translation_beta"]
+        # The length in log space: a relative error, the same for a 5 cm and an 80 cm rig.
+        log_ratio = torch.log(t_hat.norm(dim=-1).clamp_min(1e-3) / t_gt.norm(dim=-1).clamp_min(1e-3))
         losses["translation"] = (
-            F.smooth_l1_loss(t_hat, t_gt, beta=beta)
+            F.smooth_l1_loss(log_ratio, torch.zeros_like(log_ratio), beta=conf["scale_beta"])
             + F.smooth_l1_loss(d_hat, d_gt, beta=beta)
             + F.smooth_l1_loss(torch.acos(cos), torch.zeros_like(cos), beta=beta)
         )

@@ -216,19 +216,45 @@ def cell_coordinates(x: torch.Tensor, stride: int) -> torch.Tensor:
 
 
 class PoseHead(nn.Module):
-    """Both views' deepest features → reduced, avg+max pooled, concatenated → MLP → rotation, translation."""
+    """Relative pose from soft correspondences between the two views plus their global context.
+
+    Each stride-16 cell of the left view is matched against every cell of the right view: cosine similarity of
+    learned descriptors, softmax with a learned temperature, soft-argmax → the expected right position, its
+    spread and the peak similarity. Per cell, (left position, right position, displacement, spread, peak)
+    and a few context channels go through a shared MLP and are pooled (attention-weighted mean and max);
+    with the avg+max pooled deepest features of both views (the scene's scale cues), an MLP regresses the
+    quaternion and the metric translation. Global pooling alone gives the head no disparity to read.
+    """
 
     def __init__(
-        self, cin: int, reduce_dim: int, hidden_dim: int, translation_init: tuple[float, float, float]
+        self,
+        match_in: int,
+        global_in: int,
+        match_dim: int,
+        context_dim: int,
+        point_dim: int,
+        reduce_dim: int,
+        hidden_dim: int,
+        translation_init: tuple[float, float, float],
     ):
         super().__init__()
-        self.reduce = ConvBN(cin, reduce_dim, act=nn.ReLU, bn_momentum=0.1)
+        self.descriptor = nn.Conv2d(match_in, match_dim, 1)
+        self.context = ConvBN(match_in, context_dim, act=nn.ReLU, bn_momentum=0.1)
+        self.log_temperature = nn.Parameter(torch.tensor(math.log(20.0)))
+        self.point_mlp = nn.Sequential(
+            nn.Linear(9 + context_dim, point_dim),
+            nn.ReLU(inplace=True),
+            nn.Linear(point_dim, point_dim),
+            nn.ReLU(inplace=True),
+            nn.Linear(point_dim, point_dim + 1),  # features and an attention logit
+        )
+        self.reduce = ConvBN(global_in, reduce_dim, act=nn.ReLU, bn_momentum=0.1)
         last = nn.Linear(hidden_dim, 7)
         nn.init.normal_(last.weight, std=1e-3)  # start near the identity rotation and a typical baseline
         with torch.no_grad():
             last.bias.copy_(torch.tensor([1.0, 0.0, 0.0, 0.0, *translation_init]))
         self.mlp = nn.Sequential(
-            nn.Linear(4 * reduce_dim, hidden_dim),
+            nn.Linear(2 * point_dim + 4 * reduce_dim, hidden_dim),
             nn.ReLU(inplace=True),
             nn.Linear(hidden_dim, hidden_dim),
             nn.ReLU(inplace=True),
@@ -240,9 +266,35 @@ class PoseHead(nn.Module):
         x = self.reduce(feat)
         return torch.cat([x.mean(dim=(2, 3)), x.amax(dim=(2, 3))], dim=1)
 
-    def forward(self, feat_left: torch.Tensor, feat_right: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """→ quaternion [B x 4] (w, x, y, z), unit, w ≥ 0; translation [B x 3] in metres."""
-        out = self.mlp(torch.cat([self.pool(feat_left), self.pool(feat_right)], dim=1))
+    def correspondences(self, left: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
+        """Stride-16 features of both views → per left cell [B x N_left x (9 + context_dim)]."""
+        dl = F.normalize(self.descriptor(left), dim=1).flatten(2)  # [B x D x Nl]
+        dr = F.normalize(self.descriptor(right), dim=1).flatten(2)  # [B x D x Nr]
+        cos = torch.bmm(dl.transpose(1, 2), dr)  # [B x Nl x Nr]
+        prob = torch.softmax(cos * self.log_temperature.exp(), dim=2)
+        xy_left = cell_coordinates(left, 16).flatten(2).transpose(1, 2)  # [1 x Nl x 2]
+        xy_right = cell_coordinates(right, 16).flatten(2).transpose(1, 2)  # [1 x Nr x 2]
+        mean = torch.matmul(prob, xy_right)  # [B x Nl x 2]
+        spread = (torch.matmul(prob, xy_right * xy_right) - mean * mean).clamp_min(1e-6).sqrt()
+        peak = cos.amax(dim=2, keepdim=True)
+        xy_left = xy_left.expand(mean.shape[0], -1, -1)
+        context = self.context(left).flatten(2).transpose(1, 2)
+        return torch.cat([xy_left, mean, mean - xy_left, spread, peak, context], dim=2)
+
+    def forward(
+        self,
+        match_left: torch.Tensor,
+        match_right: torch.Tensor,
+        feat_left: torch.Tensor,
+        feat_right: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Stride-16 and deepest features of both views → quaternion [B x 4] (w, x, y, z), unit, w ≥ 0;
+        translation [B x 3] in metres."""
+        points = self.point_mlp(self.correspondences(match_left, match_right))  # [B x Nl x P+1]
+        attention = torch.softmax(points[..., -1:], dim=1)
+        features = points[..., :-1]
+        pooled = torch.cat([(attention * features).sum(1), features.amax(1)], dim=1)
+        out = self.mlp(torch.cat([pooled, self.pool(feat_left), self.pool(feat_right)], dim=1))
         q = F.normalize(out[:, :4], dim=1, eps=1e-8)
         q = torch.where(q[:, :1] < 0, -q, q)
         return q, out[:, 4:]
@@ -260,8 +312,11 @@ class StereoGeoNet(nn.Module):
         "decoder_dim": 64,  # channels of every FPN level (stride 32 → 4)
         "head_dim": 32,  # channels of the hidden layer of each field head
         "coord_channels": True,  # append normalised pixel coordinates to the field heads' input
-        "pose_reduce_dim": 256,  # 1 x 1 reduction of the 1280 encoder head channels before pooling
-        "pose_hidden_dim": 512,  # width of the pose MLP's two hidden layers
+        "pose_match_dim": 64,  # descriptor channels for the pose head's stride-16 soft matching
+        "pose_context_dim": 16,  # per-cell context channels beside each soft correspondence
+        "pose_point_dim": 128,  # width of the per-correspondence MLP
+        "pose_reduce_dim": 128,  # 1 x 1 reduction of the 1280 encoder head channels before pooling
+        "pose_hidden_dim": 256,  # width of the pose MLP's two hidden layers
         "translation_init": (-0.2, 0.0, 0.0),  # initial translation output in metres (a 20 cm rig)
         "channels_last": True,  # NHWC weights and activations: about 1.5x faster in torch on CPU
     }
@@ -283,17 +338,27 @@ class StereoGeoNet(nn.Module):
         self.up_head = FieldHead(head_in, c["head_dim"], 3, bias_init=(0.0, -1.0, 0.0))
         self.latitude_head = FieldHead(head_in, c["head_dim"], 2)  # latitude and confidence logit
         self.pose_head = PoseHead(
-            LITE0_HEAD_CHANNELS, c["pose_reduce_dim"], c["pose_hidden_dim"], tuple(c["translation_init"])
+            LITE0_SKIP_CHANNELS[16],
+            LITE0_HEAD_CHANNELS,
+            c["pose_match_dim"],
+            c["pose_context_dim"],
+            c["pose_point_dim"],
+            c["pose_reduce_dim"],
+            c["pose_hidden_dim"],
+            tuple(c["translation_init"]),
         )
         if c["channels_last"]:  # load_state_dict copies into these tensors and keeps their layout
             self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
 
-    def forward_view(self, image: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+    def forward_view(
+        self, image: torch.Tensor
+    ) -> tuple[dict[str, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]:
         """One view: image [B x 3 x H x W] RGB in [0, 1] → fields at stride 4 and pose features.
 
         Returns ``{"up": [B x 2 x H/4 x W/4] unit vectors (image x right, y down), "latitude": [B x H/4 x W/4]
         radians in (-π/2, π/2), "up_confidence", "latitude_confidence": [B x H/4 x W/4] in (0, 1)}`` and the
-        encoder head features [B x 1280 x H/32 x W/32].
+        pose features: the encoder's stride-16 features [B x 112 x H/16 x W/16] and its head features
+        [B x 1280 x H/32 x W/32].
         """
         if not torch.jit.is_tracing() and (
             image.shape[-2] % INPUT_MULTIPLE or image.shape[-1] % INPUT_MULTIPLE
@@ -316,7 +381,7 @@ class StereoGeoNet(nn.Module):
             "up_confidence": torch.sigmoid(up[:, 2]),
             "latitude_confidence": torch.sigmoid(lat[:, 1]),
         }
-        return fields, feats[0]
+        return fields, (feats[16], feats[0])
 
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
         """Stereo pair → fields of each view and the relative pose.
@@ -333,7 +398,7 @@ class StereoGeoNet(nn.Module):
         """
         fields_left, feat_left = self.forward_view(left)
         fields_right, feat_right = self.forward_view(right)
-        quaternion, translation = self.pose_head(feat_left, feat_right)
+        quaternion, translation = self.pose_head(feat_left[0], feat_right[0], feat_left[1], feat_right[1])
         out = {f"left_{k}": v for k, v in fields_left.items()}
         out.update({f"right_{k}": v for k, v in fields_right.items()})
         out["quaternion"] = quaternion

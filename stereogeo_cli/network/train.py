@@ -21,7 +21,7 @@ import torch
 import torch.distributed as dist
 
 from stereogeo_cli.errors import StereoGeoError
-from stereogeo_cli.network.checkpoint import load_checkpoint, save_checkpoint
+from stereogeo_cli.network.checkpoint import init_from_checkpoint, load_checkpoint, save_checkpoint
 from stereogeo_cli.network.data import TRAIN_SIZES, FolderPairs, RenderedPairs, SizedBatches, TrainingPairs
 from stereogeo_cli.network.losses import compute_losses
 from stereogeo_cli.network.losses import default_conf as loss_defaults
@@ -175,7 +175,7 @@ def validate(model: StereoGeoNet, val: FolderPairs, count: int, short_side: int)
     model.train(was_training)
     metrics: dict[str, float] = {}
     for name in ("roll", "pitch", "vfov"):
-        for key, value in summarize(np.array(errors[name])).items():
+        for key, value in summarize(np.array(errors[name]), min_error=1.0).items():
             metrics[f"{name}_{key}"] = value
     metrics["rotation_median_deg"] = float(np.median(errors["rotation"])) if errors["rotation"] else math.nan
     metrics["translation_median_rel"] = (
@@ -219,8 +219,13 @@ def train(conf: dict) -> dict:
     optimizer = torch.optim.AdamW(model.parameters(), lr=conf["lr"], weight_decay=conf["weight_decay"])
     step, best = 0, math.inf
     if conf["init"] and not (conf.get("resume") and latest.is_file()):
-        model.load_state_dict(load_checkpoint(conf["init"])[0].state_dict())
-        log("init", checkpoint=str(conf["init"]))
+        fresh = init_from_checkpoint(model, conf["init"])
+        log(
+            "init",
+            checkpoint=str(conf["init"]),
+            fresh=len(fresh),
+            fresh_modules=sorted({n.rsplit(".", 2)[0] for n in fresh}),
+        )
     if conf.get("resume") and latest.is_file():
         loaded, checkpoint = load_checkpoint(latest)
         model.load_state_dict(loaded.state_dict())
