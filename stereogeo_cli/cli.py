@@ -357,6 +357,19 @@ def batch_calibrate(
         raise typer.Exit(code=EXIT_PARTIAL_BATCH)
 
 
+def _pose_sigmas(text: str) -> dict[str, float]:
+    """'ROT,DIR' in degrees → the model metadata entries; anything else is a one-line error."""
+    try:
+        rotation, direction = (float(part) for part in text.split(","))
+    except ValueError:
+        raise StereoGeoError(
+            f"--pose-sigmas must be two numbers 'ROT,DIR' in degrees, got {text!r}"
+        ) from None
+    if not (0 < rotation < 180 and 0 < direction <= 180):
+        raise StereoGeoError(f"--pose-sigmas must be positive angles in degrees, got {text!r}")
+    return {"pose_sigma_rotation_deg": rotation, "pose_sigma_direction_deg": direction}
+
+
 @app.command("export-onnx")
 def export_onnx_command(
     checkpoint: Annotated[
@@ -376,6 +389,14 @@ def export_onnx_command(
             "validation data: the share of errors within 1 sigma should be about 68 %)."
         ),
     ] = 1.0,
+    pose_sigmas: Annotated[
+        str | None,
+        typer.Option(
+            help="The pose head's 1-sigma rotation and translation-direction errors in degrees, 'ROT,DIR' "
+            "(68th percentiles on validation data, as benchmarks/validate_model.py prints them); calibrate "
+            "weighs the head by them. Default: the fusion's fixed 5° and 15°."
+        ),
+    ] = None,
 ) -> None:
     """Export a checkpoint to one ONNX file (both views, any size), after checking it against torch."""
     try:
@@ -383,12 +404,10 @@ def export_onnx_command(
 
         if not sigma_inflation > 0:
             raise StereoGeoError(f"--sigma-inflation must be positive, got {sigma_inflation}")
-        result = export_onnx(
-            checkpoint,
-            output,
-            model_version=model_version,
-            extra_metadata={"sigma_inflation": sigma_inflation},
-        )
+        extra: dict[str, float] = {"sigma_inflation": sigma_inflation}
+        if pose_sigmas is not None:
+            extra.update(_pose_sigmas(pose_sigmas))
+        result = export_onnx(checkpoint, output, model_version=model_version, extra_metadata=extra)
     except StereoGeoError as error:
         raise fail(error) from None
     except Exception as error:  # noqa: BLE001

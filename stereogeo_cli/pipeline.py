@@ -82,6 +82,16 @@ class Calibrator:
         # model records how much to widen them (measured on validation data when it was exported).
         inflation = float(self.network.metadata.get("sigma_inflation", 1.0))
         self.conf["refine"] = {"sigma_inflation": inflation, **self.conf["refine"]}
+        # The pose head's own 1-sigma (68th percentiles of its validation errors), when the model records it:
+        # how strongly the fusion leans on it, and its sigma when it is all there is.
+        measured = {
+            "prior_rotation_sigma_deg": self.network.metadata.get("pose_sigma_rotation_deg"),
+            "prior_direction_sigma_deg": self.network.metadata.get("pose_sigma_direction_deg"),
+        }
+        self.conf["fuse"] = {
+            **{k: float(v) for k, v in measured.items() if v is not None},
+            **self.conf["fuse"],
+        }
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-matching")
 
     def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:

@@ -162,3 +162,35 @@ def test_truncated_and_foreign_models_raise_stereogeo_error(tmp_path, exported):
     onnx.save(onnx.helper.make_model(graph, opset_imports=[onnx.helper.make_opsetid("", 18)]), str(foreign))
     with pytest.raises(StereoGeoError, match="not a stereogeo network"):
         FieldNetwork(foreign)
+
+
+def test_export_cli_records_the_pose_heads_sigmas_and_calibrate_leans_on_them(tmp_path):
+    from typer.testing import CliRunner
+
+    from stereogeo_cli.cli import app
+    from stereogeo_cli.pipeline import Calibrator
+
+    model = StereoGeoNet(
+        {"pretrained": False, "decoder_dim": 16, "head_dim": 8, "pose_reduce_dim": 16, "pose_hidden_dim": 32}
+    )
+    ckpt = save_checkpoint(tmp_path / "small.pt", model, step=7, training_data="unit-test renders")
+    out = tmp_path / "small.onnx"
+    runner = CliRunner()
+    bad = runner.invoke(app, ["export-onnx", str(ckpt), "-o", str(out), "--pose-sigmas", "1.5"])
+    assert bad.exit_code == 2 and "--pose-sigmas" in bad.output and "Traceback" not in bad.output
+    assert not out.exists()
+    good = runner.invoke(app, ["export-onnx", str(ckpt), "-o", str(out), "--pose-sigmas", "1.5,7"])
+    assert good.exit_code == 0, good.output
+    metadata = FieldNetwork(out).metadata
+    assert float(metadata["pose_sigma_rotation_deg"]) == 1.5
+    assert float(metadata["pose_sigma_direction_deg"]) == 7.0
+    calibrator = Calibrator(out)
+    assert calibrator.conf["fuse"]["prior_rotation_sigma_deg"] == 1.5
+    assert calibrator.conf["fuse"]["prior_direction_sigma_deg"] == 7.0
+    # a caller's own setting wins over the model's
+    assert (
+        Calibrator(out, conf={"fuse": {"prior_rotation_sigma_deg": 3.0}}).conf["fuse"][
+            "prior_rotation_sigma_deg"
+        ]
+        == 3.0
+    )

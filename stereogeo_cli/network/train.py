@@ -119,8 +119,9 @@ def _sources(conf: dict) -> list:
 def validate(model: StereoGeoNet, val: FolderPairs, count: int, short_side: int) -> dict[str, float]:
     """The product's path on validation pairs: resize/crop, network, NumPy refiner; errors in degrees.
 
-    Returns medians and AUC@1/5/10 of roll, pitch and vFoV errors (both cameras), and the pose head's
-    median rotation error (degrees) and translation error (share of the baseline).
+    Returns medians and AUC@1/5/10 (held flat below 1°) of roll, pitch and vFoV errors (both cameras), and
+    the median and 68th percentile of the pose head's errors: rotation and translation direction (degrees),
+    translation ``|T̂ - T| / |T|`` and length ``| |T̂| / |T| - 1 |`` (shares of the baseline).
     """
     from stereogeo_cli.geometry import (
         apply_resize_crop,
@@ -136,7 +137,9 @@ def validate(model: StereoGeoNet, val: FolderPairs, count: int, short_side: int)
 
     was_training = model.training
     model.eval()
-    errors: dict[str, list[float]] = {"roll": [], "pitch": [], "vfov": [], "rotation": [], "translation": []}
+    errors: dict[str, list[float]] = {
+        k: [] for k in ("roll", "pitch", "vfov", "rotation", "translation", "direction", "scale")
+    }
     for i in range(min(count, len(val))):
         left, right, calib = val[i]
         tensors, rcs = [], []
@@ -168,19 +171,23 @@ def validate(model: StereoGeoNet, val: FolderPairs, count: int, short_side: int)
                 np.degrees(rotation_error(quat_np(out["quaternion"]), np.asarray(calib["R"])))
             )
             T = np.asarray(calib["T"], dtype=float)
-            if np.linalg.norm(T) > 1e-6:
-                errors["translation"].append(
-                    float(np.linalg.norm(out["translation"] - T) / np.linalg.norm(T))
-                )
+            t_hat, length = out["translation"], float(np.linalg.norm(T))
+            if length > 1e-6:
+                errors["translation"].append(float(np.linalg.norm(t_hat - T) / length))
+                cos = float(t_hat @ T) / max(float(np.linalg.norm(t_hat)) * length, 1e-12)
+                errors["direction"].append(float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))))
+                errors["scale"].append(abs(float(np.linalg.norm(t_hat)) / length - 1.0))
     model.train(was_training)
     metrics: dict[str, float] = {}
     for name in ("roll", "pitch", "vfov"):
         for key, value in summarize(np.array(errors[name]), min_error=1.0).items():
             metrics[f"{name}_{key}"] = value
-    metrics["rotation_median_deg"] = float(np.median(errors["rotation"])) if errors["rotation"] else math.nan
-    metrics["translation_median_rel"] = (
-        float(np.median(errors["translation"])) if errors["translation"] else math.nan
-    )
+    # The pose head alone: medians, and the 68th percentiles that serve as its 1-sigma in the product
+    # (export-onnx --pose-sigmas) and in the fusion's priors.
+    for name, unit in (("rotation", "deg"), ("direction", "deg"), ("translation", "rel"), ("scale", "rel")):
+        values = np.array(errors[name])
+        metrics[f"{name}_median_{unit}"] = float(np.median(values)) if values.size else math.nan
+        metrics[f"{name}_p68_{unit}"] = float(np.percentile(values, 68.27)) if values.size else math.nan
     return metrics
 
 
