@@ -118,3 +118,29 @@ def test_unknown_data_folder_is_a_clear_error(tmp_path):
     result = _run_train(["--data", str(tmp_path / "missing"), "--out", str(tmp_path / "o"), "--steps", "1"])
     assert result.returncode == 2
     assert "is not a dataset folder" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_init_takes_every_matching_weight_across_a_change_of_architecture(tmp_path):
+    """Fine-tuning after a head changed: the encoder, decoder and field heads come from the checkpoint, the
+    changed head stays fresh, and the caller learns which parameters those are."""
+    import torch
+
+    from stereogeo_cli.errors import StereoGeoError
+    from stereogeo_cli.network.checkpoint import init_from_checkpoint, save_checkpoint
+    from stereogeo_cli.network.model import StereoGeoNet
+
+    small = {"pretrained": False, "decoder_dim": 16, "head_dim": 8, "pose_hidden_dim": 32}
+    torch.manual_seed(1)
+    old = StereoGeoNet({**small, "pose_reduce_dim": 16})
+    ckpt = save_checkpoint(tmp_path / "old.pt", old, step=1, training_data="unit")
+    torch.manual_seed(2)
+    new = StereoGeoNet({**small, "pose_reduce_dim": 24})
+    fresh = init_from_checkpoint(new, ckpt)
+    assert fresh and all(name.startswith("pose_head.") for name in fresh)
+    assert "pose_head.reduce.conv.weight" in fresh and "pose_head.descriptor.weight" not in fresh
+    new_state, old_state = new.state_dict(), old.state_dict()
+    for name in ("encoder.stem.conv.weight", "decoder.lateral.4.conv.weight", "up_head.out.weight"):
+        torch.testing.assert_close(new_state[name], old_state[name])
+    torch.save({"model": {"nothing.like.it": torch.zeros(1)}}, tmp_path / "other.pt")
+    with pytest.raises(StereoGeoError, match="shares no weights"):
+        init_from_checkpoint(new, tmp_path / "other.pt")

@@ -55,7 +55,8 @@ SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
     "model_version": (None, "A name for the model (default: OUT's folder name)."),
     "init": (
         None,
-        "Start from the weights of this checkpoint (e.g. models/stereogeo.pt) instead of ImageNet.",
+        "Start from the weights of this checkpoint (e.g. models/stereogeo.pt) instead of ImageNet; every "
+        "weight whose name and shape match is taken, the rest (a changed head) starts fresh and is logged.",
     ),
 }
 default_conf: dict[str, Any] = {key: value for key, (value, _) in SETTINGS.items()}
