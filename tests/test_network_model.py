@@ -156,3 +156,20 @@ def test_bad_checkpoints_raise_stereogeo_error(tmp_path):
     torch.save({"weights": 1}, tmp_path / "other.pt")
     with pytest.raises(StereoGeoError, match="not a stereogeo checkpoint"):
         load_checkpoint(tmp_path / "other.pt")
+
+
+def test_pose_gradient_into_the_shared_encoder_is_scaled_and_the_outputs_are_not():
+    torch.manual_seed(0)
+    small = {"pretrained": False, "decoder_dim": 16, "head_dim": 8, "channels_last": False}
+    full = StereoGeoNet({**small, "pose_encoder_grad": 1.0}).train()
+    scaled = StereoGeoNet({**small, "pose_encoder_grad": 0.1}).train()
+    scaled.load_state_dict(full.state_dict())
+    left, right = torch.rand(2, 3, 64, 96), torch.rand(2, 3, 64, 96)
+    grads, outs = [], []
+    for model in (full, scaled):
+        out = model(left, right)
+        out["translation"].sum().backward()
+        grads.append(model.encoder.stem.conv.weight.grad.clone())
+        outs.append(out["translation"].detach())
+    torch.testing.assert_close(outs[1], outs[0])
+    torch.testing.assert_close(grads[1], 0.1 * grads[0], rtol=1e-4, atol=1e-7)

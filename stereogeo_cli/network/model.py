@@ -318,6 +318,10 @@ class StereoGeoNet(nn.Module):
         "pose_reduce_dim": 128,  # 1 x 1 reduction of the 1280 encoder head channels before pooling
         "pose_hidden_dim": 256,  # width of the pose MLP's two hidden layers
         "translation_init": (-0.2, 0.0, 0.0),  # initial translation output in metres (a 20 cm rig)
+        # Share of the pose head's gradient that reaches the shared encoder in training (the forward pass is
+        # unchanged): the metric scale is mostly unknowable from one pair, and its large, noisy gradients
+        # would otherwise drown the field heads' in the shared features under gradient clipping.
+        "pose_encoder_grad": 0.1,
         "channels_last": True,  # NHWC weights and activations: about 1.5x faster in torch on CPU
     }
 
@@ -398,6 +402,10 @@ class StereoGeoNet(nn.Module):
         """
         fields_left, feat_left = self.forward_view(left)
         fields_right, feat_right = self.forward_view(right)
+        share = float(self.conf["pose_encoder_grad"])
+        if self.training and share != 1.0:  # x·s + stop_grad(x)·(1 − s): the same values, a scaled gradient
+            feat_left = tuple(f * share + f.detach() * (1.0 - share) for f in feat_left)
+            feat_right = tuple(f * share + f.detach() * (1.0 - share) for f in feat_right)
         quaternion, translation = self.pose_head(feat_left[0], feat_right[0], feat_left[1], feat_right[1])
         out = {f"left_{k}": v for k, v in fields_left.items()}
         out.update({f"right_{k}": v for k, v in fields_right.items()})
