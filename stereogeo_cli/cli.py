@@ -184,8 +184,9 @@ def _print_summary(result, console) -> None:
     )
     T = report["T"]
     console.print(
-        f"T: ({T[0]:+.4f}, {T[1]:+.4f}, {T[2]:+.4f}) m, baseline {report['baseline_m']:.4f} m "
-        f"({'given' if report['scale_source'] == 'baseline' else 'learned scale'})"
+        f"T: ({T[0]:+.4f}, {T[1]:+.4f}, {T[2]:+.4f}) m, baseline {report['baseline_m']:.4f} m"
+        + (f" ± {100 * pose['sigma_baseline_rel']:.0f} %" if pose.get("sigma_baseline_rel") else "")
+        + f" ({'given' if report['scale_source'] == 'baseline' else 'learned scale'})"
     )
     console.print(f"matches: {report['matches']['found']} found, {report['matches']['inliers']} inliers; "
                   f"time {report['timing_ms']['total']:.0f} ms")  # fmt: skip
@@ -358,16 +359,20 @@ def batch_calibrate(
 
 
 def _pose_sigmas(text: str) -> dict[str, float]:
-    """'ROT,DIR' in degrees → the model metadata entries; anything else is a one-line error."""
+    """'ROT,DIR,SCALE' → the model metadata entries; anything else is a one-line error."""
     try:
-        rotation, direction = (float(part) for part in text.split(","))
+        rotation, direction, scale = (float(part) for part in text.split(","))
     except ValueError:
         raise StereoGeoError(
-            f"--pose-sigmas must be two numbers 'ROT,DIR' in degrees, got {text!r}"
+            f"--pose-sigmas must be three numbers 'ROT,DIR,SCALE' (degrees, degrees, fraction), got {text!r}"
         ) from None
-    if not (0 < rotation < 180 and 0 < direction <= 180):
-        raise StereoGeoError(f"--pose-sigmas must be positive angles in degrees, got {text!r}")
-    return {"pose_sigma_rotation_deg": rotation, "pose_sigma_direction_deg": direction}
+    if not (0 < rotation < 180 and 0 < direction <= 180 and scale > 0):
+        raise StereoGeoError(f"--pose-sigmas must be positive (angles in degrees below 180), got {text!r}")
+    return {
+        "pose_sigma_rotation_deg": rotation,
+        "pose_sigma_direction_deg": direction,
+        "pose_sigma_scale_rel": scale,
+    }
 
 
 @app.command("export-onnx")
@@ -392,9 +397,10 @@ def export_onnx_command(
     pose_sigmas: Annotated[
         str | None,
         typer.Option(
-            help="The pose head's 1-sigma rotation and translation-direction errors in degrees, 'ROT,DIR' "
-            "(68th percentiles on validation data, as benchmarks/validate_model.py prints them); calibrate "
-            "weighs the head by them. Default: the fusion's fixed 5° and 15°."
+            help="The pose head's 1-sigma errors 'ROT,DIR,SCALE': rotation and translation direction in "
+            "degrees, baseline length as a fraction (68th percentiles on validation data, as "
+            "benchmarks/validate_model.py prints them). calibrate weighs the head by them and reports the "
+            "learned baseline's sigma. Default: the fusion's fixed 5° and 15°, no baseline sigma."
         ),
     ] = None,
 ) -> None:

@@ -92,6 +92,8 @@ class Calibrator:
             **{k: float(v) for k, v in measured.items() if v is not None},
             **self.conf["fuse"],
         }
+        scale_sigma = self.network.metadata.get("pose_sigma_scale_rel")
+        self._learned_scale_sigma = float(scale_sigma) if scale_sigma is not None else None
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-matching")
 
     def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:
@@ -202,6 +204,8 @@ class Calibrator:
                     "sigma_direction_deg": _finite(pose.sigma_direction_deg),
                     "gravity_error_deg": pose.gravity_error_deg,
                     "rotation_deg": float(np.degrees(rotation_angle(pose.R))),
+                    # relative 1-sigma of a learned baseline (the model's validation figure); None when given
+                    "sigma_baseline_rel": self._learned_scale_sigma if scale_source == "learned" else None,
                 },
                 "warnings": list(warnings),
             },

@@ -164,6 +164,19 @@ def test_json_is_one_object_on_stdout_and_nothing_else(pair, onnx_model):
     assert set(report["model"]) == {"file", "sha256"}
 
 
+def test_a_learned_baseline_carries_the_models_sigma_and_a_given_one_none(pair, onnx_model):
+    from stereogeo_cli.network.runtime import FieldNetwork
+
+    metadata = FieldNetwork(onnx_model).metadata
+    learned = invoke("calibrate", *pair, "--model", onnx_model, "--json")
+    given = invoke("calibrate", *pair, "--model", onnx_model, "--json", "--baseline", "0.2")
+    assert learned.exit_code == 0 and given.exit_code == 0, learned.output + given.output
+    learned, given = json.loads(learned.stdout), json.loads(given.stdout)
+    assert given["pose"]["sigma_baseline_rel"] is None
+    expected = float(metadata["pose_sigma_scale_rel"]) if "pose_sigma_scale_rel" in metadata else None
+    assert learned["scale_source"] == "learned" and learned["pose"]["sigma_baseline_rel"] == expected
+
+
 def test_output_folder_gets_the_default_formats(pair, onnx_model, tmp_path):
     out = tmp_path / "calib"
     result = invoke("calibrate", *pair, "--model", onnx_model, "-o", out)
