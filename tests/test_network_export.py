@@ -196,3 +196,50 @@ def test_export_cli_records_the_pose_heads_sigmas_and_calibrate_leans_on_them(tm
         ]
         == 3.0
     )
+
+
+def test_mirrored_fields_map_back_exactly():
+    """The mirrored image of a camera with gravity (gx, gy, gz) is a camera with gravity (-gx, gy, gz) and the
+    principal point mirrored; its fields, mapped back cell for cell, are the original fields."""
+    from stereogeo_cli.geometry import gravity_from_roll_pitch
+    from stereogeo_cli.geometry.fields import latitude_at, up_at
+    from stereogeo_cli.network.runtime import _average_with_mirrored
+
+    width, height, stride, focal = 288, 224, 4, 210.0
+    x, y = cell_pixel_coordinates(height // stride, width // stride, stride)
+    g = gravity_from_roll_pitch(np.radians(12.0), np.radians(-20.0))
+    g_mirror = g * np.array([-1.0, 1.0, 1.0])
+    cx, cy = width / 2, height / 2
+
+    def fields(gravity, principal_x):
+        up = up_at(gravity, focal, x, y, principal_x, cy).transpose(2, 0, 1)[None]
+        lat = latitude_at(gravity, focal, x, y, principal_x, cy)[None]
+        conf = np.random.default_rng(0).random(lat.shape)
+        return {"up": up, "latitude": lat, "up_confidence": conf, "latitude_confidence": conf}
+
+    plain, mirrored = fields(g, cx), fields(g_mirror, width - 1 - cx)
+    mirrored["up_confidence"] = mirrored["latitude_confidence"] = plain["up_confidence"][..., ::-1]
+    out = {f"{v}_{k}": a for v in ("left", "right") for k, a in plain.items()}
+    out_mirrored = {f"{v}_{k}": a for v in ("left", "right") for k, a in mirrored.items()}
+    merged = _average_with_mirrored(out, out_mirrored)
+    for key, value in out.items():
+        np.testing.assert_allclose(merged[key], value, atol=1e-12, err_msg=key)
+
+
+def test_flip_averaging_is_mirror_symmetric(exported):
+    """With flip=True, calibrating a pair or its mirror image gives mirrored fields: the network's own
+    left-right bias cancels out."""
+    network = FieldNetwork(exported[0])
+    rng = np.random.default_rng(3)
+    size = (network.short_side, network.short_side + 64, 3)  # the network's own size: no resize, no crop
+    left = rng.integers(0, 255, size, dtype=np.uint8)
+    right = rng.integers(0, 255, size, dtype=np.uint8)
+    out = network.predict(left, right, flip=True)
+    mirror = network.predict(left[:, ::-1], right[:, ::-1], flip=True)
+    for a, b in ((out.left, mirror.left), (out.right, mirror.right)):
+        np.testing.assert_allclose(b.latitude[:, ::-1], a.latitude, atol=1e-5)
+        np.testing.assert_allclose(b.up[:, ::-1] * np.array([-1.0, 1.0]), a.up, atol=1e-5)
+        np.testing.assert_allclose(b.up_confidence[:, ::-1], a.up_confidence, atol=1e-5)
+    plain = network.predict(left, right)
+    assert not np.allclose(plain.left.latitude, out.left.latitude, atol=1e-5)  # flip did change something
+    np.testing.assert_allclose(plain.translation, out.translation)  # the pose is the unmirrored run's

@@ -138,16 +138,27 @@ class FieldNetwork:
         tensor = net_image.transpose(2, 0, 1)[None].astype(np.float32) / np.float32(255.0)
         return np.ascontiguousarray(tensor), rc
 
-    def predict(self, left_rgb: np.ndarray, right_rgb: np.ndarray) -> NetworkOutput:
+    def predict(self, left_rgb: np.ndarray, right_rgb: np.ndarray, flip: bool = False) -> NetworkOutput:
         """Fields of both views and the relative pose of a stereo pair.
 
         Args:
             left_rgb, right_rgb: RGB images [H x W x 3] uint8; the two sizes may differ.
+            flip: also run the mirrored pair and average each view's fields with the mirrored fields mapped
+                back (test-time augmentation; twice the network time). The pose is the unmirrored run's.
         """
         left, rc_left = self.prepare(left_rgb)
         right, rc_right = self.prepare(right_rgb)
         values = self.session.run(self.output_names, {"left": left, "right": right})
         out = dict(zip(self.output_names, values, strict=True))
+        if flip:
+            mirrored = self.session.run(
+                self.output_names,
+                {
+                    "left": np.ascontiguousarray(left[..., ::-1]),
+                    "right": np.ascontiguousarray(right[..., ::-1]),
+                },
+            )
+            out = _average_with_mirrored(out, dict(zip(self.output_names, mirrored, strict=True)))
         views = {}
         for view, rc in (("left", rc_left), ("right", rc_right)):
             fields = {k: out[f"{view}_{k}"][0] for k in VIEW_OUTPUTS}
@@ -166,3 +177,23 @@ class FieldNetwork:
             out["quaternion"][0].astype(float),
             out["translation"][0].astype(float),
         )
+
+
+def _average_with_mirrored(
+    out: dict[str, np.ndarray], mirrored: dict[str, np.ndarray]
+) -> dict[str, np.ndarray]:
+    """Average the fields of a pair with those of the horizontally mirrored pair, mapped back.
+
+    Mirroring the input maps output cell j to cell w - 1 - j exactly (cell centres 4j + 1.5 and
+    W - 1 - x coincide), flips the up vector's x and leaves the latitude unchanged.
+    """
+    merged = dict(out)
+    for view in ("left", "right"):
+        up_m = mirrored[f"{view}_up"][..., ::-1].copy()
+        up_m[:, 0] *= -1.0
+        up = out[f"{view}_up"] + up_m
+        merged[f"{view}_up"] = up / np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-8)
+        for key in ("latitude", "up_confidence", "latitude_confidence"):
+            name = f"{view}_{key}"
+            merged[name] = 0.5 * (out[name] + mirrored[name][..., ::-1])
+    return merged
