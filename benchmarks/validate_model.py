@@ -2,7 +2,8 @@
 
     python benchmarks/validate_model.py CHECKPOINT VAL_DIR [--count N]
 
-The network alone (no feature matches): per-camera roll, pitch and vFoV errors through the NumPy refiner
+The network alone (no feature matches; fields averaged with the mirrored pair's, as calibrate does, unless
+--no-flip): per-camera roll, pitch and vFoV errors through the NumPy refiner
 (median, mean, AUC@1/5/10 in degrees), and the pose head's median rotation error (degrees) and
 translation error (share of the baseline). This is what the model card reports.
 """
@@ -23,12 +24,18 @@ def main() -> None:
     parser.add_argument("val")
     parser.add_argument("--count", type=int, default=300)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--no-flip", action="store_true", help="no mirror averaging (calibrate uses it)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     model, checkpoint = load_checkpoint(args.checkpoint)
     short_side = int(checkpoint.get("input_short_side", 224))
-    metrics = validate(model, FolderPairs(args.val), args.count, short_side)
-    print(json.dumps({"step": checkpoint.get("step"), "pairs": args.count, **metrics}, indent=1))
+    metrics = validate(model, FolderPairs(args.val), args.count, short_side, flip=not args.no_flip)
+    print(
+        json.dumps(
+            {"step": checkpoint.get("step"), "pairs": args.count, "flip": not args.no_flip, **metrics},
+            indent=1,
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -203,7 +203,7 @@ def test_mirrored_fields_map_back_exactly():
     principal point mirrored; its fields, mapped back cell for cell, are the original fields."""
     from stereogeo_cli.geometry import gravity_from_roll_pitch
     from stereogeo_cli.geometry.fields import latitude_at, up_at
-    from stereogeo_cli.network.runtime import _average_with_mirrored
+    from stereogeo_cli.network.runtime import average_with_mirrored
 
     width, height, stride, focal = 288, 224, 4, 210.0
     x, y = cell_pixel_coordinates(height // stride, width // stride, stride)
@@ -221,7 +221,7 @@ def test_mirrored_fields_map_back_exactly():
     mirrored["up_confidence"] = mirrored["latitude_confidence"] = plain["up_confidence"][..., ::-1]
     out = {f"{v}_{k}": a for v in ("left", "right") for k, a in plain.items()}
     out_mirrored = {f"{v}_{k}": a for v in ("left", "right") for k, a in mirrored.items()}
-    merged = _average_with_mirrored(out, out_mirrored)
+    merged = average_with_mirrored(out, out_mirrored)
     for key, value in out.items():
         np.testing.assert_allclose(merged[key], value, atol=1e-12, err_msg=key)
 

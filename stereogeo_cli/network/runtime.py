@@ -158,7 +158,7 @@ class FieldNetwork:
                     "right": np.ascontiguousarray(right[..., ::-1]),
                 },
             )
-            out = _average_with_mirrored(out, dict(zip(self.output_names, mirrored, strict=True)))
+            out = average_with_mirrored(out, dict(zip(self.output_names, mirrored, strict=True)))
         views = {}
         for view, rc in (("left", rc_left), ("right", rc_right)):
             fields = {k: out[f"{view}_{k}"][0] for k in VIEW_OUTPUTS}
@@ -179,7 +179,7 @@ class FieldNetwork:
         )
 
 
-def _average_with_mirrored(
+def average_with_mirrored(
     out: dict[str, np.ndarray], mirrored: dict[str, np.ndarray]
 ) -> dict[str, np.ndarray]:
     """Average the fields of a pair with those of the horizontally mirrored pair, mapped back.

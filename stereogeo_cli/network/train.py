@@ -117,9 +117,12 @@ def _sources(conf: dict) -> list:
 
 
 @torch.no_grad()
-def validate(model: StereoGeoNet, val: FolderPairs, count: int, short_side: int) -> dict[str, float]:
+def validate(
+    model: StereoGeoNet, val: FolderPairs, count: int, short_side: int, flip: bool = False
+) -> dict[str, float]:
     """The product's path on validation pairs: resize/crop, network, NumPy refiner; errors in degrees.
 
+    ``flip``: average the fields with the mirrored pair's, as ``calibrate`` does.
     Returns medians and AUC@1/5/10 (held flat below 1°) of roll, pitch and vFoV errors (both cameras), and
     the median and 68th percentile of the pose head's errors: rotation and translation direction (degrees),
     translation ``|T̂ - T| / |T|`` and length ``| |T̂| / |T| - 1 |`` (shares of the baseline).
@@ -133,7 +136,7 @@ def validate(model: StereoGeoNet, val: FolderPairs, count: int, short_side: int)
     )
     from stereogeo_cli.geometry import quaternion_to_rotation as quat_np
     from stereogeo_cli.metrics import summarize
-    from stereogeo_cli.network.runtime import cell_pixel_coordinates
+    from stereogeo_cli.network.runtime import average_with_mirrored, cell_pixel_coordinates
     from stereogeo_cli.refine import refine_camera
 
     was_training = model.training
@@ -149,7 +152,11 @@ def validate(model: StereoGeoNet, val: FolderPairs, count: int, short_side: int)
             cut = apply_resize_crop(image, rc)
             tensors.append(torch.from_numpy(np.ascontiguousarray(cut.transpose(2, 0, 1)))[None].float() / 255)
             rcs.append(rc)
-        out = {k: v[0].numpy().astype(float) for k, v in model(*tensors).items()}
+        raw = {k: v.numpy() for k, v in model(*tensors).items()}
+        if flip:  # as calibrate does: fields averaged with the mirrored pair's (the pose is the plain run's)
+            mirrored = {k: v.numpy() for k, v in model(*(t.flip(-1) for t in tensors)).items()}
+            raw = average_with_mirrored(raw, mirrored)
+        out = {k: v[0].astype(float) for k, v in raw.items()}
         for view, rc in zip(("left", "right"), rcs, strict=True):
             cam = calib[view]
             if cam.get("gravity_up") is None:
