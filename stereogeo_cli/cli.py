@@ -387,6 +387,12 @@ def export_onnx_command(
     model_version: Annotated[
         str | None, typer.Option(help="A version name stored in the model (default: the checkpoint's).")
     ] = None,
+    training_data: Annotated[
+        str | None,
+        typer.Option(
+            help="A description of the training data stored in the model (default: the checkpoint's)."
+        ),
+    ] = None,
     sigma_inflation: Annotated[
         float,
         typer.Option(
@@ -413,7 +419,9 @@ def export_onnx_command(
         extra: dict[str, float] = {"sigma_inflation": sigma_inflation}
         if pose_sigmas is not None:
             extra.update(_pose_sigmas(pose_sigmas))
-        result = export_onnx(checkpoint, output, model_version=model_version, extra_metadata=extra)
+        result = export_onnx(
+            checkpoint, output, model_version=model_version, training_data=training_data, extra_metadata=extra
+        )
     except StereoGeoError as error:
         raise fail(error) from None
     except Exception as error:  # noqa: BLE001

@@ -179,12 +179,25 @@ def test_export_cli_records_the_pose_heads_sigmas_and_calibrate_leans_on_them(tm
     bad = runner.invoke(app, ["export-onnx", str(ckpt), "-o", str(out), "--pose-sigmas", "1.5"])
     assert bad.exit_code == 2 and "--pose-sigmas" in bad.output and "Traceback" not in bad.output
     assert not out.exists()
-    good = runner.invoke(app, ["export-onnx", str(ckpt), "-o", str(out), "--pose-sigmas", "1.5,7,0.6"])
+    good = runner.invoke(
+        app,
+        [
+            "export-onnx",
+            str(ckpt),
+            "-o",
+            str(out),
+            "--pose-sigmas",
+            "1.5,7,0.6",
+            "--training-data",
+            "26k renders",
+        ],
+    )
     assert good.exit_code == 0, good.output
     metadata = FieldNetwork(out).metadata
     assert float(metadata["pose_sigma_rotation_deg"]) == 1.5
     assert float(metadata["pose_sigma_direction_deg"]) == 7.0
     assert float(metadata["pose_sigma_scale_rel"]) == 0.6
+    assert metadata["training_data"] == "26k renders"
     calibrator = Calibrator(out)
     assert calibrator._learned_scale_sigma == 0.6
     assert calibrator.conf["fuse"]["prior_rotation_sigma_deg"] == 1.5
