@@ -27,9 +27,10 @@ DEFAULT_MODEL = MODELS_DIR / "stereogeo.onnx"
 default_conf = {
     "min_mean_confidence": 0.05,  # below this mean field confidence a view is too ambiguous to calibrate
     "known_focal_sigma": 0.0,  # 0: a focal given by the user is held fixed; > 0: relative 1-sigma
-    # Also run the mirrored pair and average the fields (twice the network time). On 300 validation renders
-    # it cut the median roll error by a fifth and the vFoV error by an eighth (docs/network.md).
-    "flip": True,
+    # Also run the mirrored pair and average the fields (twice the network time). Off: with stereogeo-m2 it
+    # lowered the mean errors on renders but raised the median roll error and the real-image vFoV errors
+    # (docs/network.md, "Mirror averaging").
+    "flip": False,
     "match": {},  # overrides of stereogeo_cli.fuse.matches.default_conf
     "fuse": {},  # overrides of stereogeo_cli.fuse.pose.default_conf
     "refine": {},  # overrides of stereogeo_cli.refine.default_conf
