@@ -19,7 +19,7 @@ import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.fuse import Matches, essential_pose, match_features
-from stereogeo_cli.geometry import roll_pitch_from_gravity, rotation_error, vfov_from_focal
+from stereogeo_cli.geometry import gravity_angle, roll_pitch_from_gravity, rotation_error, vfov_from_focal
 from stereogeo_cli.io import load_image
 from stereogeo_cli.metrics import summarize
 
@@ -43,8 +43,7 @@ def read_dataset(folder: str | Path) -> list[dict]:
 
 
 def _direction_error_deg(a: np.ndarray, b: np.ndarray) -> float:
-    cos = float(np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b)))
-    return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
+    return math.degrees(float(gravity_angle(a, b)))  # the angle between two direction vectors
 
 
 def orb_matches(left: np.ndarray, right: np.ndarray, features: int = 5000) -> Matches:

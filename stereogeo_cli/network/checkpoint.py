@@ -48,14 +48,19 @@ def save_checkpoint(path: str | os.PathLike, model: StereoGeoNet, step: int = 0,
     return path
 
 
-def load_checkpoint(path: str | os.PathLike) -> tuple[StereoGeoNet, dict[str, Any]]:
-    """Read a checkpoint → (model in eval mode, checkpoint dict); bad files raise StereoGeoError."""
+def _read(path: str | os.PathLike) -> Any:
+    """``torch.load(path, weights_only=True)`` on the CPU; a missing or unreadable file: StereoGeoError."""
     try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+        return torch.load(path, map_location="cpu", weights_only=True)
     except FileNotFoundError:
         raise StereoGeoError(f"checkpoint not found: {path}") from None
     except Exception as exc:  # torch raises many types for files that are not checkpoints
         raise StereoGeoError(f"cannot read checkpoint {path}: {type(exc).__name__}") from None
+
+
+def load_checkpoint(path: str | os.PathLike) -> tuple[StereoGeoNet, dict[str, Any]]:
+    """Read a checkpoint → (model in eval mode, checkpoint dict); bad files raise StereoGeoError."""
+    checkpoint = _read(path)
     if not isinstance(checkpoint, dict) or "model" not in checkpoint or "conf" not in checkpoint:
         raise StereoGeoError(f"{path} is not a stereogeo checkpoint (no 'model' and 'conf' entries)")
     try:
@@ -76,12 +81,7 @@ def init_from_checkpoint(model: StereoGeoNet, path: str | os.PathLike) -> list[s
     """Copy into ``model`` every tensor of the checkpoint at ``path`` whose name and shape match (fine-tuning
     across a change of architecture, e.g. a new pose head). Returns the names of the model's parameters and
     buffers left as they were, sorted; a checkpoint that shares nothing with the model raises."""
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-    except FileNotFoundError:
-        raise StereoGeoError(f"checkpoint not found: {path}") from None
-    except Exception as exc:  # torch raises many types for files that are not checkpoints
-        raise StereoGeoError(f"cannot read checkpoint {path}: {type(exc).__name__}") from None
+    checkpoint = _read(path)
     if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get("model"), dict):
         raise StereoGeoError(f"{path} is not a stereogeo checkpoint (no 'model' entry)")
     own = model.state_dict()

@@ -122,13 +122,14 @@ def validate(
 ) -> dict[str, float]:
     """The product's path on validation pairs: resize/crop, network, NumPy refiner; errors in degrees.
 
-    ``flip``: average the fields with the mirrored pair's, as ``calibrate`` does.
+    ``flip``: average the fields with the mirrored pair's (``calibrate``'s ``flip`` option, off by default).
     Returns medians and AUC@1/5/10 (held flat below 1°) of roll, pitch and vFoV errors (both cameras), and
     the median and 68th percentile of the pose head's errors: rotation and translation direction (degrees),
     translation ``|T̂ - T| / |T|`` and length ``| |T̂| / |T| - 1 |`` (shares of the baseline).
     """
     from stereogeo_cli.geometry import (
         apply_resize_crop,
+        gravity_angle,
         resize_crop_for_network,
         roll_pitch_from_gravity,
         rotation_error,
@@ -153,7 +154,9 @@ def validate(
             tensors.append(torch.from_numpy(np.ascontiguousarray(cut.transpose(2, 0, 1)))[None].float() / 255)
             rcs.append(rc)
         raw = {k: v.numpy() for k, v in model(*tensors).items()}
-        if flip:  # as calibrate does: fields averaged with the mirrored pair's (the pose is the plain run's)
+        if (
+            flip
+        ):  # as calibrate's flip option: fields averaged with the mirrored pair's (pose: the plain run's)
             mirrored = {k: v.numpy() for k, v in model(*(t.flip(-1) for t in tensors)).items()}
             raw = average_with_mirrored(raw, mirrored)
         out = {k: v[0].astype(float) for k, v in raw.items()}
@@ -182,8 +185,7 @@ def validate(
             t_hat, length = out["translation"], float(np.linalg.norm(T))
             if length > 1e-6:
                 errors["translation"].append(float(np.linalg.norm(t_hat - T) / length))
-                cos = float(t_hat @ T) / max(float(np.linalg.norm(t_hat)) * length, 1e-12)
-                errors["direction"].append(float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))))
+                errors["direction"].append(float(np.degrees(gravity_angle(t_hat, T))))
                 errors["scale"].append(abs(float(np.linalg.norm(t_hat)) / length - 1.0))
     model.train(was_training)
     metrics: dict[str, float] = {}
