@@ -193,6 +193,7 @@ class PairJob:
     focal_left: float | None = None
     focal_right: float | None = None
     keep_evidence: bool = False  # keep what --same-rig needs (focal, gravity, pose, matches)
+    pinhole: bool = False  # --pinhole: fit no lens distortion
 
 
 @dataclass
@@ -211,6 +212,7 @@ class RigEvidence:
     baseline_m: float
     matches_left: np.ndarray
     matches_right: np.ndarray
+    distortion: tuple[float, float] = (0.0, 0.0)  # division-model k per camera, for the refined focal
 
 
 @dataclass
@@ -261,6 +263,7 @@ def _evidence(result) -> RigEvidence:
         baseline_m=result.calibration.baseline_m,
         matches_left=empty if matches is None else np.asarray(matches.left, dtype=float),
         matches_right=empty if matches is None else np.asarray(matches.right, dtype=float),
+        distortion=tuple(result.pose.distortion),
     )
 
 
@@ -298,13 +301,19 @@ def _init_worker(threads: int) -> None:
     cv2.setNumThreads(max(threads, 1))
 
 
+def calibrator_conf(pinhole: bool) -> dict:
+    """The Calibrator settings of ``--pinhole``: no lens distortion fitted."""
+    return {"fuse": {"distortion": False}} if pinhole else {}
+
+
 def _worker_task(entry: PairEntry, job: PairJob) -> PairOutcome:
-    key = (job.model, job.threads)
+    key = (job.model, job.threads, job.pinhole)
     if _WORKER.get("key") != key:
         from stereogeo_cli.pipeline import Calibrator
 
         try:
-            _WORKER["calibrator"], _WORKER["key"] = Calibrator(job.model, threads=job.threads), key
+            calibrator = Calibrator(job.model, threads=job.threads, conf=calibrator_conf(job.pinhole))
+            _WORKER["calibrator"], _WORKER["key"] = calibrator, key
         except StereoGeoError as error:
             return PairOutcome(entry.name, entry.left, entry.right, "failed", str(error), fatal=True)
     return calibrate_pair(_WORKER["calibrator"], entry, job)
@@ -435,10 +444,12 @@ def chordal_mean(rotations: Sequence[np.ndarray]) -> np.ndarray:
 def pool_matches(evidence: Sequence[RigEvidence], K_left: np.ndarray, K_right: np.ndarray):
     """All pairs' matches consistent with their own pose (Sampson error < POOL_THRESHOLD_PX) as one Matches.
 
-    Pairs whose pose did not come from matches add nothing. Returns (Matches, inliers per pair [N]).
+    The matches are judged after undoing the pair's own lens distortion, and pooled as observed (the joint
+    fit estimates the distortion again). Pairs whose pose did not come from matches add nothing. Returns
+    (Matches, inliers per pair [N]).
     """
     from stereogeo_cli.fuse import Matches, sampson_errors
-    from stereogeo_cli.geometry import fundamental_matrix
+    from stereogeo_cli.geometry import fundamental_matrix, intrinsic_matrix, undistort_division
 
     left, right, counts = [], [], []
     for ev in evidence:
@@ -446,7 +457,18 @@ def pool_matches(evidence: Sequence[RigEvidence], K_left: np.ndarray, K_right: n
             counts.append(0)
             continue
         F = fundamental_matrix(K_left, K_right, ev.R, ev.t_direction)
-        keep = np.abs(sampson_errors(F, ev.matches_left, ev.matches_right)) < POOL_THRESHOLD_PX
+        # the pair's lens undone (its k belongs to its own focal; the pixels stay the same pixels)
+        seen = [
+            undistort_division(points, intrinsic_matrix(focal, *size), k)
+            for points, size, focal, k in zip(
+                (ev.matches_left, ev.matches_right),
+                (ev.size_left, ev.size_right),
+                ev.focal,
+                ev.distortion,
+                strict=True,
+            )
+        ]
+        keep = np.abs(sampson_errors(F, *seen)) < POOL_THRESHOLD_PX
         left.append(ev.matches_left[keep])
         right.append(ev.matches_right[keep])
         counts.append(int(keep.sum()))
@@ -464,16 +486,23 @@ def _same_sizes(outcomes: Sequence[PairOutcome]) -> None:
 
 
 def calibrate_rig(
-    first: Sequence[PairOutcome], second: Sequence[PairOutcome], focals, baseline_m: float | None, model
+    first: Sequence[PairOutcome],
+    second: Sequence[PairOutcome],
+    focals,
+    baseline_m: float | None,
+    model,
+    pinhole: bool = False,
 ):
     """The joint calibration (a StereoCalibration) from pass-1 and pass-2 outcomes of the same pairs.
 
-    ``focals``: the (left, right) :class:`FocalEstimate`; ``model``: (file name, sha256) for the report.
+    ``focals``: the (left, right) :class:`FocalEstimate`; ``model``: (file name, sha256) for the report;
+    ``pinhole``: fit no lens distortion.
     """
     from stereogeo_cli.fuse import fuse_relative_pose
     from stereogeo_cli.geometry import (
         gravity_angle,
         intrinsic_matrix,
+        opencv_from_division,
         roll_pitch_from_gravity,
         rotation_angle,
     )
@@ -491,7 +520,12 @@ def calibrate_rig(
     pose = fuse_relative_pose(
         pooled, K_left, K_right, prior_R=chordal_mean([e.R for e in ev]),
         prior_t=t_mean if np.linalg.norm(t_mean) > 1e-9 else ev[0].t_direction,
+        conf=calibrator_conf(pinhole).get("fuse"),
     )  # fmt: skip
+    D_left, D_right = (
+        opencv_from_division(k, math.hypot(w, h) / (2.0 * est.focal_px))
+        for k, (w, h), est in zip(pose.distortion, ((w_l, h_l), (w_r, h_r)), focals, strict=True)
+    )
     if baseline_m is not None:
         baseline, scale_source = float(baseline_m), "baseline"
     else:
@@ -518,7 +552,7 @@ def calibrate_rig(
     ]
     return StereoCalibration(
         K_left=K_left, K_right=K_right, image_size_left=(w_l, h_l), image_size_right=(w_r, h_r),
-        R=pose.R, T=pose.translation(baseline),
+        R=pose.R, T=pose.translation(baseline), D_left=D_left, D_right=D_right,
         sigma_left=sigma(focals[0], h_l), sigma_right=sigma(focals[1], h_r),
         scale_source=scale_source, matches_found=pose.matches_found, matches_inliers=pose.inliers,
         model_file=model[0], model_sha256=model[1], notes="; ".join(notes),
@@ -528,6 +562,8 @@ def calibrate_rig(
                 "sigma_rotation_deg": _finite(pose.sigma_rotation_deg),
                 "sigma_direction_deg": _finite(pose.sigma_direction_deg),
                 "rotation_deg": math.degrees(rotation_angle(pose.R)),
+                "distortion_k": [float(k) for k in pose.distortion],
+                "sigma_distortion_k": [_finite(s) for s in pose.sigma_distortion],
             },
             "pairs": pairs,
             "warnings": list(pose.notes),
@@ -623,6 +659,7 @@ def run_batch(
     same_rig: bool = False,
     shard: tuple[int, int] | None = None,
     progress: bool = False,
+    pinhole: bool = False,
 ) -> BatchSummary:
     """Calibrate every pair of ``folder`` into ``out_dir/<name>/``, write the summaries (and ``rig/``).
 
@@ -630,6 +667,7 @@ def run_batch(
         formats: output formats of each pair (and of the joint calibration).
         workers: processes; each has its own network session with ``threads // workers`` threads.
         progress: a Rich progress bar on stderr (else one plain line per pair there).
+        pinhole: the images have no lens distortion (rectified or undistorted): none is fitted.
     Raises:
         StereoGeoError: no pairs (exit code 2), or a model that cannot be loaded. A pair that fails does
         not raise: its outcome is "failed". A failed joint calibration is returned in ``rig_error``.
@@ -644,12 +682,12 @@ def run_batch(
         if not calibrator_cache:
             from stereogeo_cli.pipeline import Calibrator
 
-            calibrator_cache.append(Calibrator(model, threads=threads))
+            calibrator_cache.append(Calibrator(model, threads=threads, conf=calibrator_conf(pinhole)))
         return calibrator_cache[0]
 
     if workers <= 1 and any(e.problem is None for e in entries):
         calibrator()  # a bad model fails here, before any pair
-    job = PairJob(out_dir, formats, baseline_m, model, threads, keep_evidence=same_rig)
+    job = PairJob(out_dir, formats, baseline_m, model, threads, keep_evidence=same_rig, pinhole=pinhole)
     pairs = [e for e in entries if e.problem is None]
     outcomes_by_name: dict[str, PairOutcome] = {}
     with _Progress(progress) as bar:
@@ -695,10 +733,12 @@ def _same_rig(outcomes, job: PairJob, workers, calibrator, bar: _Progress, basel
     second_job = PairJob(
         None, job.formats, job.baseline_m, job.model, job.threads,
         focal_left=focals[0].focal_px, focal_right=focals[1].focal_px, keep_evidence=True,
+        pinhole=job.pinhole,
     )  # fmt: skip
     bar.stage("same rig", len(ok))
     entries = [PairEntry(o.name, o.left, o.right) for o in ok]
     second = _run_pass(entries, second_job, workers, calibrator, bar)
     model_info = (ok[0].report or {}).get("model") or {}
-    rig = calibrate_rig(ok, second, focals, baseline_m, (model_info.get("file"), model_info.get("sha256")))
+    model_id = (model_info.get("file"), model_info.get("sha256"))
+    rig = calibrate_rig(ok, second, focals, baseline_m, model_id, pinhole=job.pinhole)
     return replace(rig, timing_ms={"total": (time.perf_counter() - start) * 1e3})  # the same-rig stage

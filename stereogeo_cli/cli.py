@@ -172,6 +172,10 @@ def _print_summary(result, console) -> None:
         )
     table.add_row("size", f"{report['left']['width']}×{report['left']['height']}",
                   f"{report['right']['width']}×{report['right']['height']}")  # fmt: skip
+    if any(report[side]["dist"] and any(report[side]["dist"]) for side in ("left", "right")):
+        table.add_row("k1 k2 k3", *(
+            " ".join(f"{report[side]['dist'][i]:+.3f}" for i in (0, 1, 4)) for side in ("left", "right")
+        ))  # fmt: skip
     console.print(table)
     pose = report["pose"]
     from stereogeo_cli.geometry import axis_angle_from_rotation
@@ -192,6 +196,12 @@ def _print_summary(result, console) -> None:
                   f"time {report['timing_ms']['total']:.0f} ms")  # fmt: skip
     for warning in report["warnings"]:
         console.print(f"[yellow]warning:[/yellow] {warning}")
+
+
+_PINHOLE_HELP = (
+    "The images have no lens distortion (rectified or undistorted): fit none. By default one radial "
+    "distortion per camera is fitted where the feature matches clearly show it."
+)
 
 
 @app.command()
@@ -224,6 +234,13 @@ def calibrate(
     focal_right: Annotated[
         float | None, typer.Option(help="The right camera's focal length in pixels, if known.")
     ] = None,
+    pinhole: Annotated[
+        bool,
+        typer.Option(
+            "--pinhole",
+            help=_PINHOLE_HELP,
+        ),
+    ] = False,
     model: Annotated[
         Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
     ] = None,
@@ -245,11 +262,12 @@ def calibrate(
             _check_output_folder(output)
         if preview is not None:
             _check_output_folder(preview.parent)
+        from stereogeo_cli.batch import calibrator_conf
         from stereogeo_cli.io import load_image, write_calibration
         from stereogeo_cli.pipeline import Calibrator
 
         left_image, right_image = load_image(left), load_image(right)
-        calibrator = Calibrator(model, threads=threads)
+        calibrator = Calibrator(model, threads=threads, conf=calibrator_conf(pinhole))
         result = calibrator.calibrate(
             left_image, right_image, baseline_m=baseline, focal_left=focal_left, focal_right=focal_right
         )
@@ -299,6 +317,13 @@ def batch_calibrate(
     baseline: Annotated[
         float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
     ] = None,
+    pinhole: Annotated[
+        bool,
+        typer.Option(
+            "--pinhole",
+            help=_PINHOLE_HELP,
+        ),
+    ] = False,
     model: Annotated[
         Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
     ] = None,
@@ -333,6 +358,7 @@ def batch_calibrate(
         summary = run_batch(
             folder, output, formats=names, baseline_m=baseline, model=model, threads=threads,
             workers=workers, same_rig=same_rig, shard=shard_spec, progress=sys.stderr.isatty(),
+            pinhole=pinhole,
         )  # fmt: skip
     except StereoGeoError as error:
         raise fail(error) from None

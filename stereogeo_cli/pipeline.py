@@ -15,7 +15,7 @@ import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed
 from stereogeo_cli.fuse import Matches, RelativePose, fuse_relative_pose, match_features
-from stereogeo_cli.geometry import intrinsic_matrix, rotation_angle
+from stereogeo_cli.geometry import intrinsic_matrix, opencv_from_division, rotation_angle
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.images import check_pair
 from stereogeo_cli.network.runtime import FieldNetwork, ViewFields
@@ -182,6 +182,10 @@ class Calibrator:
         fit_right = fit_right.with_focal(fit_right.focal_px * pose.focal_scale[1])
         K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
         K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
+        D_left, D_right = (
+            opencv_from_division(k, math.hypot(fit.width, fit.height) / (2.0 * fit.focal_px))
+            for k, fit in zip(pose.distortion, (fit_left, fit_right), strict=True)
+        )
 
         if baseline_m is not None:
             baseline, scale_source = float(baseline_m), "baseline"
@@ -195,7 +199,7 @@ class Calibrator:
             K_left=K_left, K_right=K_right,
             image_size_left=(fit_left.width, fit_left.height),
             image_size_right=(fit_right.width, fit_right.height),
-            R=pose.R, T=pose.translation(baseline),
+            R=pose.R, T=pose.translation(baseline), D_left=D_left, D_right=D_right,
             gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
             sigma_left=fit_left.sigma, sigma_right=fit_right.sigma,
             scale_source=scale_source, matches_found=pose.matches_found, matches_inliers=pose.inliers,
@@ -208,6 +212,9 @@ class Calibrator:
                     "sigma_direction_deg": _finite(pose.sigma_direction_deg),
                     "gravity_error_deg": pose.gravity_error_deg,
                     "rotation_deg": float(np.degrees(rotation_angle(pose.R))),
+                    # the fitted radial distortion: division-model k per camera (left, right) and its sigma
+                    "distortion_k": [float(k) for k in pose.distortion],
+                    "sigma_distortion_k": [_finite(s) for s in pose.sigma_distortion],
                     # relative 1-sigma of a learned baseline (the model's validation figure); None when given
                     "sigma_baseline_rel": self._learned_scale_sigma if scale_source == "learned" else None,
                 },

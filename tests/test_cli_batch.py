@@ -319,6 +319,42 @@ def test_pooled_matches_give_a_better_pose_than_single_pairs():
     assert direction_error(joint.t_direction) < np.median(single_t), (joint.t_direction, single_t)
 
 
+def test_pooling_judges_each_pair_after_undoing_its_lens():
+    """A barrel lens (division k = -0.2) on both cameras: with each pair's fitted k every match pools as an
+    inlier; without it some at the edges are dropped. Pooled matches stay as observed."""
+    from stereogeo_cli.geometry import undistort_division
+
+    rng = np.random.default_rng(8)
+    K = intrinsic_matrix(500.0, 640, 480)
+    R, T = rotation_from_axis_angle(np.radians([0.5, 2.0, 0.3])), np.array([-0.3, 0.003, 0.002])
+
+    def distort(points, k):  # the division model's inverse: r_u = r_d / (1 + k r_d²), solved for r_d
+        x = (points - K[:2, 2]) / 500.0
+        r_u = np.linalg.norm(x, axis=1, keepdims=True)
+        r_d = (1.0 - np.sqrt(1.0 - 4.0 * k * r_u**2)) / (2.0 * k * r_u)
+        return K[:2, 2] + 500.0 * x * r_d / r_u
+
+    X = np.column_stack([rng.uniform(-0.6, 0.6, 300), rng.uniform(-0.45, 0.45, 300), np.ones(300)])
+    X *= rng.uniform(1.5, 4.0, 300)[:, None]  # near: disparities that show the lens
+    xl, xr = X @ K.T, (X @ R.T + T) @ K.T
+    m = Matches(xl[:, :2] / xl[:, 2:], xr[:, :2] / xr[:, 2:])
+    seen = Matches(distort(m.left, -0.2), distort(m.right, -0.2))
+    np.testing.assert_allclose(undistort_division(seen.left, K, -0.2), m.left, atol=1e-9)
+
+    def evidence(k):
+        return RigEvidence((640, 480), (640, 480), (500.0, 500.0), (1.0, 1.0), None, None, R, T / 0.3,
+                           "matches", 0.3, seen.left, seen.right, distortion=(k, k))  # fmt: skip
+
+    pooled, (kept,) = pool_matches([evidence(-0.2)], K, K)
+    assert kept == len(seen)
+    np.testing.assert_array_equal(pooled.left, seen.left)  # as observed: the joint fit finds the lens again
+    _, (kept_pinhole,) = pool_matches([evidence(0.0)], K, K)
+    assert kept_pinhole < len(seen)  # the edges' matches bend past the 2 px a pinhole allows
+
+
+PINHOLE = {"distortion": False}
+
+
 def test_pooling_real_pairs_of_one_rig(shared_data):
     """EuRoC: 10 pairs of one rig, with the ground-truth intrinsics (undistorted matches)."""
     from stereogeo_cli.fuse import match_features
@@ -336,13 +372,15 @@ def test_pooling_real_pairs_of_one_rig(shared_data):
             for pts, k, side in ((m.left, K[0], "left"), (m.right, K[1], "right"))
         ]
         m = Matches(*undistorted)
-        pose = fuse_relative_pose(m, *K)
+        pose = fuse_relative_pose(m, *K, conf=PINHOLE)  # undistorted with the true lens already
         R_true = np.array(calib["R"])
         single.append(np.degrees(rotation_error(pose.R, R_true)))
         evidence.append(RigEvidence((752, 480), (752, 480), (0.0, 0.0), (1.0, 1.0), None, None, pose.R,
                                     pose.t_direction, pose.source, 0.11, m.left, m.right))  # fmt: skip
     pooled, _ = pool_matches(evidence, *K)
     t_mean = np.sum([e.t_direction for e in evidence], axis=0)
-    joint = fuse_relative_pose(pooled, *K, prior_R=chordal_mean([e.R for e in evidence]), prior_t=t_mean)
+    joint = fuse_relative_pose(
+        pooled, *K, prior_R=chordal_mean([e.R for e in evidence]), prior_t=t_mean, conf=PINHOLE
+    )
     joint_error = np.degrees(rotation_error(joint.R, R_true))
     assert joint_error < np.median(single), (joint_error, sorted(single))

@@ -236,3 +236,48 @@ print("no torch")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "no torch"
+
+
+def test_a_lens_is_fitted_where_the_matches_show_it_and_never_with_pinhole(
+    example_pair, onnx_model, tmp_path
+):
+    """The example pair seen through a barrel lens (division model, k = -0.25 at f = 512 px): the default
+    fits a barrel per camera and writes it; ``--pinhole`` writes none. The undistorted pair gets none."""
+    from stereogeo_cli.geometry import intrinsic_matrix, rotation_error, undistort_division
+
+    images = [rgb(p) for p in example_pair]
+    h, w = images[0].shape[:2]
+    grid = np.stack(np.meshgrid(np.arange(w), np.arange(h)), -1).reshape(-1, 2).astype(float)
+    where = undistort_division(grid, intrinsic_matrix(512.0, w, h), -0.25).reshape(h, w, 2).astype(np.float32)
+    seen = [write_rgb(tmp_path / f"{i}.png", cv2.remap(im, where[..., 0], where[..., 1], cv2.INTER_LINEAR))
+            for i, im in enumerate(images)]  # fmt: skip
+    truth = json.loads((ROOT / "examples" / "ground_truth.json").read_text())
+    runs = {
+        name: invoke("calibrate", *files, "--model", onnx_model, "--json", *flags)
+        for name, files, flags in (
+            ("lens", seen, []), ("lens_pinhole", seen, ["--pinhole"]), ("plain", example_pair, []),
+        )
+    }  # fmt: skip
+    for name, run in runs.items():
+        assert run.exit_code == 0, (name, run.output)
+    reports = {name: json.loads(run.stdout) for name, run in runs.items()}
+    from stereogeo_cli.network.runtime import FieldNetwork
+
+    if FieldNetwork(onnx_model).metadata.get("model_version") == "untrained-test":
+        pytest.skip("the untrained test network's focal lengths make the lens test meaningless")
+    lens = reports["lens"]
+    for side in ("left", "right"):
+        assert len(lens[side]["dist"]) == 5 and lens[side]["dist"][0] < -0.03  # barrel, k1 k2 0 0 k3
+        assert reports["lens_pinhole"][side]["dist"] == [] and reports["plain"][side]["dist"] == []
+    assert lens["pose"]["distortion_k"][0] < 0 and lens["pose"]["sigma_distortion_k"][0] > 0
+    assert reports["plain"]["pose"]["distortion_k"] == [0.0, 0.0]
+    errors = {
+        name: np.degrees(rotation_error(np.array(r["R"]), np.array(truth["R"])))
+        for name, r in reports.items()
+    }
+    assert errors["lens"] < errors["lens_pinhole"], errors
+    # the lens reaches the files: OpenCV's D1 is the report's left dist
+    written = invoke("calibrate", *seen, "--model", onnx_model, "-o", tmp_path / "out", "--format", "opencv")
+    assert written.exit_code == 0, written.output
+    fs = cv2.FileStorage(str(tmp_path / "out" / "intrinsics.yml"), cv2.FILE_STORAGE_READ)
+    np.testing.assert_allclose(fs.getNode("D1").mat().ravel(), lens["left"]["dist"], rtol=1e-6)

@@ -125,3 +125,91 @@ def test_focal_ratio_is_refined_with_the_pose():
         assert a.focal_scale == (1.0, 1.0)
     assert np.median(ratio_errors) < 0.01
     assert np.median(refined) < np.median(fixed)
+
+
+def _distorted_matches(rng, K_left, K_right, R, T, D, count=400, noise_px=0.5, size=(640, 480)):
+    """Matches of a scene seen through lenses with OpenCV distortion D (both cameras), inside the images."""
+    import cv2
+
+    X = np.column_stack([rng.uniform(-6, 6, count), rng.uniform(-4.5, 4.5, count), rng.uniform(2, 15, count)])
+    seen = []
+    for K, rvec, tvec in ((K_left, np.zeros(3), np.zeros(3)), (K_right, cv2.Rodrigues(R)[0], T)):
+        x, _ = cv2.projectPoints(X, rvec, np.asarray(tvec, dtype=float), K, D)
+        seen.append(x.reshape(-1, 2) + rng.normal(0, noise_px, (count, 2)))
+    inside = np.all([(x >= 0).all(1) & (x < size).all(1) for x in seen], axis=0)
+    return Matches(seen[0][inside], seen[1][inside])
+
+
+def test_radial_distortion_is_fitted_where_the_matches_show_it():
+    """Barrel distortion (OpenCV k1 = -0.25) bends the epipolar lines: the fitted lens takes it out."""
+    import cv2
+
+    from stereogeo_cli.geometry import undistort_division
+
+    rng = np.random.default_rng(44)
+    K = intrinsic_matrix(500, 640, 480)
+    D = np.array([-0.25, 0.06, 0.0, 0.0, 0.0])
+    grid = np.stack(np.meshgrid(np.linspace(0, 639, 17), np.linspace(0, 479, 13)), -1).reshape(-1, 2)
+    grid = grid[np.linalg.norm(grid - K[:2, 2], axis=1) < 240]  # the inscribed circle, where matches are
+
+    def lens_error_px(k):  # how far the true lens moves our undistorted grid from where it was seen
+        rays = np.column_stack([(undistort_division(grid, K, k) - K[:2, 2]) / 500.0, np.ones(len(grid))])
+        seen, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, D)
+        return np.abs(seen.reshape(-1, 2) - grid).max()
+
+    fitted, pinhole, lens_errors = [], [], []
+    for _ in range(8):
+        R, T = _rig(rng)
+        T = T / np.linalg.norm(T) * 0.4  # a baseline that shows the lens: over 2–15 m, short ones hardly do
+        m = _distorted_matches(rng, K, K, R, T, D)
+        pose = fuse_relative_pose(m, K, K, prior_R=R, prior_t=T)
+        plain = fuse_relative_pose(m, K, K, prior_R=R, prior_t=T, conf={"distortion": False})
+        assert plain.distortion == (0.0, 0.0)
+        fitted.append(np.degrees(rotation_error(pose.R, R)))
+        pinhole.append(np.degrees(rotation_error(plain.R, R)))
+        if pose.distortion == (0.0, 0.0):
+            continue  # the pinhole pose bent to the lens about as well (the nested test's gain < 20)
+        for k in pose.distortion:
+            assert k < 0  # barrel
+            lens_errors.append(lens_error_px(k))
+    assert len(lens_errors) >= 2 * 5  # the radial model chosen for at least 5 of the 8 rigs
+    assert np.median(fitted) < 0.5 * np.median(pinhole), (fitted, pinhole)
+    # inside the circle the matches cover, the fitted lens is within a few pixels of the true one,
+    # where assuming none is off by 13 px
+    assert lens_error_px(0.0) > 12.0
+    assert np.median(lens_errors) < 3.0, lens_errors
+
+
+def test_no_distortion_is_fitted_to_pinhole_matches():
+    """Undistorted matches, with outliers and noise: the selection keeps the pinhole model every time."""
+    rng = np.random.default_rng(45)
+    K_left, K_right = intrinsic_matrix(500, 640, 480), intrinsic_matrix(540, 640, 480)
+    for _ in range(20):
+        R, T = _rig(rng)
+        m = _matches(rng, K_left, K_right, R, T, noise_px=1.0, outliers=0.3)
+        pose = fuse_relative_pose(m, K_left, K_right, prior_R=R, prior_t=T, focal_sigma_rel=(0.1, 0.1))
+        assert pose.distortion == (0.0, 0.0)
+        assert pose.sigma_distortion == (float("inf"), float("inf"))
+
+
+def test_the_sign_of_t_comes_from_parallax_and_from_the_pose_head_in_a_far_scene():
+    """Near points decide the sign of t by lying in front of both cameras, even against the pose head; a
+    scene at infinity cannot, and there the head's sign is taken."""
+    rng = np.random.default_rng(46)
+    K = intrinsic_matrix(500, 640, 480)
+    R, T = _rig(rng)
+    T = T / np.linalg.norm(T) * 0.3
+
+    def matches(depth):
+        X = np.column_stack([rng.uniform(-1, 1, 300), rng.uniform(-0.75, 0.75, 300), np.ones(300)])
+        X *= rng.uniform(*depth, 300)[:, None]
+        xl, xr = X @ K.T, (X @ R.T + T) @ K.T
+        noise = rng.normal(0, 0.3, (2, 300, 2))
+        return Matches(xl[:, :2] / xl[:, 2:] + noise[0], xr[:, :2] / xr[:, 2:] + noise[1])
+
+    near, far = matches((2.0, 10.0)), matches((2000.0, 5000.0))
+    for prior_sign in (1.0, -1.0):
+        pose = fuse_relative_pose(near, K, K, prior_R=R, prior_t=prior_sign * T)
+        assert pose.t_direction @ T > 0.99 * np.linalg.norm(T)  # parallax wins over a wrong head
+        pose = fuse_relative_pose(far, K, K, prior_R=R, prior_t=prior_sign * T)
+        assert np.sign(pose.t_direction @ T) == prior_sign  # no parallax: the head's sign

@@ -231,3 +231,27 @@ def test_epipolar_constraint():
     )
     assert np.abs(np.sum(nr * (nl @ essential_matrix(R, T).T), axis=1)).max() < 1e-12
     assert symmetric_epipolar_distance(F, xl, xr + [0, 3.0]).min() > 0.5
+
+
+@pytest.mark.parametrize("k", [-0.35, -0.2, -0.05, 0.03])
+def test_division_model_written_as_opencv_coefficients_maps_the_same_pixels(k):
+    """What we fit (division model) and what we write (OpenCV k1 k2 k3) agree to a fraction of a pixel."""
+    import cv2
+
+    from stereogeo_cli.geometry import opencv_from_division, undistort_division
+
+    K = intrinsic_matrix(500.0, 640, 480)
+    corner = np.hypot(320, 240) / 500.0
+    D = opencv_from_division(k, corner)
+    assert D.shape == (5,) and D[2] == D[3] == 0.0
+    grid = np.stack(np.meshgrid(np.linspace(0, 639, 33), np.linspace(0, 479, 25)), -1).reshape(-1, 2)
+    pinhole = undistort_division(grid, K, k)  # the observed (distorted) grid, undone by the division model
+    rays = np.column_stack([(pinhole - K[:2, 2]) / 500.0, np.ones(len(grid))])
+    seen, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, D)  # and distorted again by OpenCV's
+    assert np.abs(seen.reshape(-1, 2) - grid).max() < 0.5
+    # barrel (k < 0) moves points outwards when undone; no distortion leaves them
+    centre_dist = np.linalg.norm(grid - K[:2, 2], axis=1)
+    moved = np.linalg.norm(pinhole - K[:2, 2], axis=1) - centre_dist
+    assert (np.sign(moved[centre_dist > 100]) == -np.sign(k)).all()
+    np.testing.assert_array_equal(undistort_division(grid, K, 0.0), grid)
+    assert opencv_from_division(0.0, corner).size == 0  # none, as OpenCV and the dataset layout write it

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from stereogeo_cli.fuse.matches import Matches
+from stereogeo_cli.geometry.camera import division_limit, undistort_division
 from stereogeo_cli.geometry.epipolar import fundamental_matrix
 from stereogeo_cli.geometry.gravity import (
     couple_rotation_to_gravity,
@@ -30,6 +31,13 @@ default_conf = {
     "iterations": 15,  # Gauss–Newton/LM steps of the joint refinement
     "prior_rotation_sigma_deg": 5.0,  # 1-sigma of the pose head's rotation
     "prior_direction_sigma_deg": 15.0,  # 1-sigma of the pose head's translation direction
+    "sign_min_parallax_deg": 1.0,  # points whose rays meet at more than this decide the sign of t
+    "sign_min_points": 10,  # fewer such points: the pose head's sign of t
+    "distortion": True,  # fit one radial (division-model) distortion parameter per camera to the matches
+    "distortion_sigma": 0.2,  # 1-sigma of the zero-mean prior on it (normalised coordinates)
+    "distortion_max_pincushion": 0.0,  # largest pincushion stretch k·r² at the image corner (0: barrel only)
+    "distortion_min_inliers": 50,  # fewer inliers than this: no distortion fitted
+    "distortion_min_gain": 20.0,  # robust cost (noise² units) k must save to be kept (χ², 2 dof: p 5e-5)
 }
 
 
@@ -46,6 +54,10 @@ class RelativePose:
     sigma_direction_deg: float = float("inf")
     gravity_error_deg: float | None = None  # angle between R·g_left and g_right after the fusion
     focal_scale: tuple[float, float] = (1.0, 1.0)  # refined focal / given focal, per camera
+    # radial distortion per camera: the division-model k (undistorted = distorted / (1 + k·r²)) in the
+    # normalised coordinates of the refined K, and its 1-sigma (0 and inf: not fitted)
+    distortion: tuple[float, float] = (0.0, 0.0)
+    sigma_distortion: tuple[float, float] = (float("inf"), float("inf"))
     notes: list[str] = field(default_factory=list)
 
     def translation(self, baseline_m: float) -> np.ndarray:
@@ -171,6 +183,15 @@ def fuse_relative_pose(
     # while the absolute focal is unobservable on near-parallel rigs and absorbs lens distortion.
     var = [0.0 if (v is None or not np.isfinite(v) or v <= 0) else float(v) ** 2 for v in focal_sigma_rel]
     split = None if sum(var) <= 0 else (var[0] / sum(var), var[1] / sum(var), float(np.sqrt(sum(var))))
+    # Radial distortion bends the epipolar lines (on a stereo rig: vertical disparity growing towards the
+    # corners), which no pinhole pose explains; one division-model k per camera, held near 0 by a prior
+    # where the matches do not show it. Bounded below so the model does not fold over inside the image,
+    # and above at a mild pincushion: strong pincushion is rare in real lenses, while a free k on few or
+    # clustered matches drifts there.
+    k_bounds = None
+    if conf["distortion"]:
+        corner = [np.hypot(K[0, 2], K[1, 2]) / K[0, 0] for K in (K_left, K_right)]
+        k_bounds = tuple((division_limit(r), conf["distortion_max_pincushion"] / r**2) for r in corner)
     priors = _Priors(
         gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad, prior_R, prior_t,
         np.radians(conf["prior_rotation_sigma_deg"]), np.radians(conf["prior_direction_sigma_deg"]),
@@ -185,48 +206,105 @@ def fuse_relative_pose(
         t_p = np.asarray(prior_t, dtype=float) / np.linalg.norm(prior_t)
         if rotation_error(R_p, R0) > np.radians(0.5) or np.degrees(gravity_angle(t_p, t0)) > 5.0:
             starts.append((R_p, t_p))  # a second start only where it could lead elsewhere
+
+    def fit(R, t, d, mask, bounds) -> _Fit:
+        """Two rounds: refine on the inliers, re-select the inliers among all matches, refine again."""
+        k = (0.0, 0.0)
+        for _ in range(2):
+            R, t, d, k, H, scales, _ = _refine_pose(
+                R, t, d, k, matches.left[mask], matches.right[mask], K_left, K_right, noise, priors, split,
+                bounds, conf,
+            )  # fmt: skip
+            K_l, K_r = _scaled(K_left, scales[0]), _scaled(K_right, scales[1])
+            left = undistort_division(matches.left, K_left, k[0])
+            right = undistort_division(matches.right, K_right, k[1])
+            errors = sampson_errors(fundamental_matrix(K_l, K_r, R, t), left, right)
+            mask = np.abs(errors) < max(3.0 * noise, conf["ransac_threshold_px"])
+        # The epipolar error cannot tell t from -t: the points must lie in front of the cameras. Only points
+        # with parallax can say so; with too few of them (a far scene), the pose head's sign is taken.
+        share, count = _in_front_share(
+            R, t, left[mask], right[mask], K_l, K_r, np.radians(conf["sign_min_parallax_deg"])
+        )
+        if count < conf["sign_min_points"] and prior_t is not None:
+            t = t if t @ prior_t >= 0 else -t
+        elif share < 0.5:
+            t = -t
+        focal_terms = 0.0 if split is None else (d / split[2]) ** 2
+        k_terms = (k[0] ** 2 + k[1] ** 2) / conf["distortion_sigma"] ** 2
+        score = float(
+            np.sum(np.minimum((errors / noise) ** 2, 9.0)) + np.sum(priors.residuals(R, t) ** 2)
+            + focal_terms + k_terms
+        )  # fmt: skip
+        return _Fit(score, R, t, d, k, scales, H, mask)
+
     best = None
     for R, t in starts:
-        mask, d = mask0, 0.0
-        # two rounds: refine on the inliers, re-select the inliers among all matches, refine again
-        for _ in range(2):
-            R, t, d, H, scales = _refine_pose(
-                R, t, d, matches.left[mask], matches.right[mask], K_left, K_right, noise, priors, split, conf
-            )
-            K_l, K_r = _scaled(K_left, scales[0]), _scaled(K_right, scales[1])
-            errors = sampson_errors(fundamental_matrix(K_l, K_r, R, t), matches.left, matches.right)
-            mask = np.abs(errors) < max(3.0 * noise, conf["ransac_threshold_px"])
-        if _in_front_share(R, t, matches.left[mask], matches.right[mask], K_l, K_r) < 0.5:
-            t = -t  # the epipolar error cannot tell t from -t; the points must lie in front of the cameras
-        focal_terms = 0.0 if split is None else (d / split[2]) ** 2
-        score = float(
-            np.sum(np.minimum((errors / noise) ** 2, 9.0)) + np.sum(priors.residuals(R, t) ** 2) + focal_terms
-        )
-        if best is None or score < best[0]:
-            best = (score, R, t, scales, H, mask)
-    _, R, t, scales, H, inlier_mask = best
+        candidate = fit(R, t, 0.0, mask0, None)
+        if best is None or candidate.score < best.score:
+            best = candidate
+    # The lens model is chosen by a nested test on the pinhole fit's inliers: re-refined as a pinhole and
+    # with the two k free, from the same solution, the robust cost must fall by more than noise would let
+    # two extra parameters take (few or clustered matches let k absorb outliers or a scene's ambiguity).
+    radial = False
+    if k_bounds is not None and best.mask.sum() >= conf["distortion_min_inliers"]:
+        on = (matches.left[best.mask], matches.right[best.mask], K_left, K_right, noise, priors, split)
+        R, t, d, _, _, _, pinhole_cost = _refine_pose(best.R, best.t, best.d, (0.0, 0.0), *on, None, conf)
+        radial_cost = _refine_pose(R, t, d, (0.0, 0.0), *on, k_bounds, conf)[-1]
+        if pinhole_cost - radial_cost > conf["distortion_min_gain"]:
+            best, radial = fit(best.R, best.t, best.d, best.mask, k_bounds), True
+    R, t, scales, k, H, inlier_mask = best.R, best.t, best.scales, best.k, best.H, best.mask
     cov = np.linalg.inv(H)
+    distortion, sigma_distortion = (0.0, 0.0), (float("inf"), float("inf"))
+    if radial:
+        # k in the refined K's normalised coordinates: r' = r·f/f', so k' = k·(f'/f)²
+        grow = (np.exp(2 * scales[0]), np.exp(2 * scales[1]))
+        distortion = (float(k[0] * grow[0]), float(k[1] * grow[1]))
+        sigma_distortion = (float(np.sqrt(cov[-2, -2]) * grow[0]), float(np.sqrt(cov[-1, -1]) * grow[1]))
     return RelativePose(
         R=R, t_direction=t, source="matches", matches_found=found, inliers=int(inlier_mask.sum()),
         sigma_rotation_deg=float(np.degrees(np.sqrt(np.trace(cov[:3, :3])))),
         sigma_direction_deg=float(np.degrees(np.sqrt(np.trace(cov[3:5, 3:5])))),
         focal_scale=(float(np.exp(scales[0])), float(np.exp(scales[1]))),
-
+        distortion=distortion, sigma_distortion=sigma_distortion,
         gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
         notes=notes,
     )  # fmt: skip
 
 
-def _in_front_share(R, t, left, right, K_left, K_right) -> float:
-    """Share of matches that triangulate in front of both cameras."""
-    if len(left) == 0:
-        return 1.0
+@dataclass
+class _Fit:
+    """One refined pose: its robust score over all matches, the parameters, the Hessian and the inliers."""
+
+    score: float
+    R: np.ndarray
+    t: np.ndarray
+    d: float  # log focal ratio (0 when the focals are held)
+    k: tuple[float, float]  # division-model k per camera, in the given K's normalised coordinates
+    scales: tuple[float, float]  # log focal scale per camera
+    H: np.ndarray
+    mask: np.ndarray
+
+
+def _in_front_share(R, t, left, right, K_left, K_right, min_parallax_rad: float = 0.0) -> tuple[float, int]:
+    """Share of matches that triangulate in front of both cameras, among those whose two rays meet at
+    more than ``min_parallax_rad``, and how many those are.
+
+    Points near infinity tell nothing about the sign of t: a rotation error of a few hundredths of a degree
+    puts them all behind or all in front.
+    """
+    nl, nr = _normalise(left, K_left), _normalise(right, K_right)
+    ray_l = np.column_stack([nl, np.ones(len(nl))])
+    ray_r = np.column_stack([nr, np.ones(len(nr))]) @ R  # Rᵀ·ray, in the left camera's frame
+    cos = np.sum(ray_l * ray_r, axis=1) / np.linalg.norm(ray_l, axis=1) / np.linalg.norm(ray_r, axis=1)
+    use = np.arccos(np.clip(cos, -1.0, 1.0)) > min_parallax_rad
+    if not use.any():
+        return 1.0, 0
     P_left = np.hstack([np.eye(3), np.zeros((3, 1))])
     P_right = np.hstack([R, t.reshape(3, 1)])
-    X = cv2.triangulatePoints(P_left, P_right, _normalise(left, K_left).T, _normalise(right, K_right).T)
+    X = cv2.triangulatePoints(P_left, P_right, nl[use].T, nr[use].T)
     X = X[:3] / X[3]
     depth_left, depth_right = X[2], (R @ X + t.reshape(3, 1))[2]
-    return float(np.mean((depth_left > 0) & (depth_right > 0)))
+    return float(np.mean((depth_left > 0) & (depth_right > 0))), int(use.sum())
 
 
 @dataclass
@@ -247,7 +325,10 @@ class _Priors:
         if self.R is not None:
             parts.append(_rotation_residual(R, self.R) / self.rotation_sigma)
         if self.t is not None:
-            parts.append((t - self.t / np.linalg.norm(self.t)) / self.direction_sigma)
+            # against ±t, whichever is nearer: the epipolar error cannot tell the sign, the points in front
+            # of the cameras decide it after the refinement, and a flipped t must not look far from the prior
+            prior = self.t / np.linalg.norm(self.t)
+            parts.append((t * (1.0 if t @ prior >= 0 else -1.0) - prior) / self.direction_sigma)
         return np.concatenate(parts)
 
 
@@ -259,57 +340,76 @@ def _scaled(K: np.ndarray, log_scale: float) -> np.ndarray:
     return K
 
 
-def _refine_pose(R, t, d, left, right, K_left, K_right, noise_px, priors: _Priors, split, conf):
-    """LM on (rotation update [3], direction tangent [2], and with ``split`` the log focal ratio d):
-    robust Sampson errors in units of the match noise, plus the soft gravity coupling, the pose-head
-    prior and the refiner's focal ratio, in units of their sigmas.
+def _refine_pose(R, t, d, k, left, right, K_left, K_right, noise_px, priors: _Priors, split, k_bounds, conf):
+    """LM on (rotation update [3], direction tangent [2], with ``split`` the log focal ratio d, with
+    ``k_bounds`` the two cameras' distortion k): robust Sampson errors in units of the match noise, plus
+    the soft gravity coupling, the pose-head prior, the refiner's focal ratio and the zero-mean distortion
+    prior, in units of their sigmas.
 
     ``split`` = (w_left, w_right, sigma_d): the left focal is scaled by exp(w_left·d) and the right one
-    by exp(-w_right·d), so each camera takes its share of a ratio correction.
+    by exp(-w_right·d), so each camera takes its share of a ratio correction. ``k`` = (k_left, k_right)
+    undistorts the matches in the normalised coordinates of the given K_left, K_right; ``k_bounds`` their
+    (lower, upper) limits. Returns R, t, d, k, the Gauss–Newton Hessian, the two log focal scales and
+    the final robust cost (in units of the noise and the sigmas).
     """
-    n_params = 5 if split is None else 6
+    n_base = 5 if split is None else 6
+    n_params = n_base + (0 if k_bounds is None else 2)
+    sigma_k = conf["distortion_sigma"]
 
     def log_scales(d_):
         return (0.0, 0.0) if split is None else (split[0] * d_, -split[1] * d_)
 
-    def residuals(R_, t_, d_):
+    def residuals(R_, t_, d_, k_):
         s_l, s_r = log_scales(d_)
         F = fundamental_matrix(_scaled(K_left, s_l), _scaled(K_right, s_r), R_, t_)
+        sampson = sampson_errors(
+            F, undistort_division(left, K_left, k_[0]), undistort_division(right, K_right, k_[1])
+        )
         ratio = [] if split is None else [d_ / split[2]]
-        return np.concatenate([sampson_errors(F, left, right) / noise_px, priors.residuals(R_, t_), ratio])
+        k_prior = [] if k_bounds is None else [k_[0] / sigma_k, k_[1] / sigma_k]
+        return np.concatenate([sampson / noise_px, priors.residuals(R_, t_), ratio, k_prior])
 
-    def moved(R_, t_, d_, delta):
+    def moved(R_, t_, d_, k_, delta):
+        if k_bounds is not None:
+            k_ = tuple(float(np.clip(k_[i] + delta[n_base + i], *k_bounds[i])) for i in (0, 1))
         return (
             rotation_from_axis_angle(delta[:3]) @ R_,
             retract_on_sphere(t_, delta[3:5], tangent_basis(t_)),
             d_ + (delta[5] if split is not None else 0.0),
+            k_,
         )
 
     n_data = len(left)
     huber_k = conf["sampson_scale_px"] / noise_px  # Huber threshold in units of the noise
-    lam, eps = 1e-3, 1e-7
-    H = np.eye(n_params)
-    for _ in range(conf["iterations"]):
-        r = residuals(R, t, d)
+
+    def weights(r):
         w = np.ones_like(r)
         data_abs = np.abs(r[:n_data])
         w[:n_data] = np.where(data_abs <= huber_k, 1.0, huber_k / np.maximum(data_abs, 1e-12))
+        return w
+
+    lam, eps = 1e-3, 1e-7
+    H = np.eye(n_params)
+    for _ in range(conf["iterations"]):
+        r = residuals(R, t, d, k)
+        w = weights(r)
         J = np.empty((len(r), n_params))
         for i in range(n_params):
             e = np.zeros(n_params)
             e[i] = eps
-            J[:, i] = (residuals(*moved(R, t, d, e)) - residuals(*moved(R, t, d, -e))) / (2 * eps)
+            J[:, i] = (residuals(*moved(R, t, d, k, e)) - residuals(*moved(R, t, d, k, -e))) / (2 * eps)
         H = J.T @ (J * w[:, None])
         step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), J.T @ (w * r))
-        R_new, t_new, d_new = moved(R, t, d, step)
-        r_new = residuals(R_new, t_new, d_new)
+        R_new, t_new, d_new, k_new = moved(R, t, d, k, step)
+        r_new = residuals(R_new, t_new, d_new, k_new)
         cost, new_cost = float(np.sum(w * r * r)), float(np.sum(w * r_new * r_new))
         if new_cost < cost:
-            R, t, d, lam = R_new, t_new, d_new, lam * 0.1
+            R, t, d, k, lam = R_new, t_new, d_new, k_new, lam * 0.1
             if cost - new_cost < 1e-6 * cost or np.linalg.norm(step) < 1e-10:
                 break
         else:
             lam *= 10
             if lam > 1e6:
                 break
-    return R, t, d, H, log_scales(d)
+    r = residuals(R, t, d, k)
+    return R, t, d, k, H, log_scales(d), float(np.sum(weights(r) * r * r))

@@ -89,3 +89,64 @@ def apply_resize_crop(image: np.ndarray, rc: ResizeCrop) -> np.ndarray:
     resized = cv2.resize(image, rc.resized_size, interpolation=interp) if rc.scale != 1 else image
     x, y = rc.crop
     return resized[y : y + rc.out_size[1], x : x + rc.out_size[0]]
+
+
+# ------------------------------------------------------------------------------------ radial lens distortion
+# Fitted from the matches (fuse/pose.py) with the one-parameter division model, undistorted = distorted /
+# (1 + k·r_d²) in normalised coordinates, which inverts in closed form; written to files as OpenCV's
+# polynomial model (k1, k2, k3), which every reader understands.
+
+
+def undistort_division(points: np.ndarray, K: np.ndarray, k: float) -> np.ndarray:
+    """Pixels [N x 2] seen through a division-model lens with parameter ``k`` → pinhole pixels of K."""
+    points = np.asarray(points, dtype=float)
+    if k == 0.0 or len(points) == 0:
+        return points
+    f = np.array([K[0, 0], K[1, 1]])
+    c = np.array([K[0, 2], K[1, 2]])
+    x = (points - c) / f
+    return x / (1.0 + k * np.sum(x * x, axis=-1, keepdims=True)) * f + c
+
+
+def division_limit(max_radius: float) -> float:
+    """The most negative (barrel) ``k`` the division model takes out to ``max_radius`` (normalised).
+
+    Beyond it 1 + k·r² falls below 0.1 and the model folds over; strong fisheyes need another model.
+    """
+    return -0.9 / max(float(max_radius) ** 2, 1e-12)
+
+
+def opencv_from_division(k: float, max_radius: float, samples: int = 64) -> np.ndarray:
+    """OpenCV distortion ``[k1, k2, 0, 0, k3]`` closest to the division model ``k`` out to ``max_radius``.
+
+    ``max_radius`` is the largest normalised radius in the image (corner distance / focal). The fit is
+    least squares on r_d/r_u - 1 = k1·r_u² + k2·r_u⁴ + k3·r_u⁶ over radii evenly spaced in the distorted
+    image. No distortion (k = 0) gives an empty array, OpenCV's and the dataset layout's "none".
+    """
+    if k == 0.0:
+        return np.zeros(0)
+    r_d = np.linspace(max_radius / samples, max_radius, samples)
+    r_u = r_d / (1.0 + k * r_d**2)
+    A = np.column_stack([r_u**2, r_u**4, r_u**6])
+    k1, k2, k3 = np.linalg.lstsq(A, r_d / r_u - 1.0, rcond=None)[0]
+    return np.array([k1, k2, 0.0, 0.0, k3])
+
+
+def fold_k3(D: np.ndarray, K: np.ndarray, size: tuple[int, int], samples: int = 64) -> np.ndarray:
+    """OpenCV ``[k1, k2, p1, p2, k3]`` → ``[k1', k2', p1, p2]`` closest over the image (for 4-term formats).
+
+    The radial factor 1 + k1·r² + k2·r⁴ + k3·r⁶ is refitted without r⁶ in least squares over undistorted
+    radii out to the image corner's.
+    """
+    D = np.asarray(D, dtype=float)
+    if D.size < 5 or D[4] == 0.0:
+        return D[:4].copy()
+    k1, k2, k3 = D[0], D[1], D[4]
+    r_d = np.hypot(size[0], size[1]) / (2.0 * K[0, 0])  # the corner, normalised
+    r_u = r_d
+    for _ in range(20):  # fixed point of r_d = r_u·(1 + k1·r_u² + k2·r_u⁴ + k3·r_u⁶)
+        r_u = r_d / (1.0 + k1 * r_u**2 + k2 * r_u**4 + k3 * r_u**6)
+    r = np.linspace(r_u / samples, r_u, samples)
+    A = np.column_stack([r**2, r**4])
+    k1_new, k2_new = np.linalg.lstsq(A, k1 * r**2 + k2 * r**4 + k3 * r**6, rcond=None)[0]
+    return np.array([k1_new, k2_new, D[2], D[3]])

@@ -1,21 +1,28 @@
 """Kalibr ``camchain.yaml``: two pinhole-radtan cameras, cam1 carrying ``T_cn_cnm1`` = [R | T; 0 0 0 1].
 
-Kalibr's radtan model has four coefficients (k1 k2 p1 p2); higher terms cannot be written and are named
-in a comment when they are not zero.
+Kalibr's radtan model has four coefficients (k1 k2 p1 p2): a k3 is folded into k1 k2 over the image
+(``geometry.fold_k3``, said in a comment); the rational terms k4–k6 cannot be written and are named in a
+comment when they are not zero.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from stereogeo_cli.geometry import fold_k3
 from stereogeo_cli.io.calibration import Rectification, StereoCalibration
 from stereogeo_cli.io.text import flow_list
 
 
 def _camera(K: np.ndarray, D: np.ndarray, size: tuple[int, int], overlaps: int, topic: str) -> str:
     text = ""
-    if np.any(D[4:] != 0):
-        text += f"  # radtan keeps k1 k2 p1 p2; dropped: {flow_list(D[4:])}\n"
+    if np.any(D[5:] != 0):
+        text += f"  # radtan keeps k1 k2 p1 p2; dropped: {flow_list(D[5:])}\n"
+    if D[4] != 0:
+        text += (
+            f"  # k3 = {flow_list([D[4]])[1:-1]} folded into k1 k2 over the image (radtan has four terms)\n"
+        )
+        D = fold_k3(D[:5], K, size)
     return text + (
         f"  cam_overlaps: [{overlaps}]\n"
         f"  camera_model: pinhole\n"
