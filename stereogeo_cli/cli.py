@@ -420,12 +420,13 @@ def export_onnx_command(
         ),
     ] = None,
     sigma_inflation: Annotated[
-        float,
+        str,
         typer.Option(
-            help="Factor the refiner's 1-sigma figures are widened by with this model (measured on "
-            "validation data: the share of errors within 1 sigma should be about 68 %)."
+            help="Factor the refiner's 1-sigma figures are widened by with this model, one number or three "
+            "'ROLL,PITCH,VFOV' (measured on validation data: `evaluate --json` prints each parameter's "
+            "scale_for_68, the factor that puts 68 % of the errors within 1 sigma)."
         ),
-    ] = 1.0,
+    ] = "1",
     pose_sigmas: Annotated[
         str | None,
         typer.Option(
@@ -439,10 +440,13 @@ def export_onnx_command(
     """Export a checkpoint to one ONNX file (both views, any size), after checking it against torch."""
     try:
         from stereogeo_cli.network.export import export_onnx
+        from stereogeo_cli.refine import parse_sigma_inflation
 
-        if not sigma_inflation > 0:
-            raise StereoGeoError(f"--sigma-inflation must be positive, got {sigma_inflation}")
-        extra: dict[str, float] = {"sigma_inflation": sigma_inflation}
+        try:
+            parse_sigma_inflation(sigma_inflation)
+        except ValueError as error:
+            raise StereoGeoError(f"--sigma-inflation: {error}") from None
+        extra: dict[str, float | str] = {"sigma_inflation": sigma_inflation.replace(" ", "")}
         if pose_sigmas is not None:
             extra.update(_pose_sigmas(pose_sigmas))
         result = export_onnx(

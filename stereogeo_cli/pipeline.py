@@ -13,13 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from stereogeo_cli.errors import CalibrationFailed
+from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.fuse import Matches, RelativePose, fuse_relative_pose, match_features
 from stereogeo_cli.geometry import intrinsic_matrix, opencv_from_division, rotation_angle
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.images import check_pair
 from stereogeo_cli.network.runtime import FieldNetwork, ViewFields
-from stereogeo_cli.refine import CameraFit, refine_camera
+from stereogeo_cli.refine import CameraFit, parse_sigma_inflation, refine_camera
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 DEFAULT_MODEL = MODELS_DIR / "stereogeo.onnx"
@@ -84,7 +84,10 @@ class Calibrator:
         self.network = FieldNetwork(self.model_path, threads=threads)
         # The refiner's sigmas treat field cells as independent; a network's errors are correlated, and the
         # model records how much to widen them (measured on validation data when it was exported).
-        inflation = float(self.network.metadata.get("sigma_inflation", 1.0))
+        try:
+            inflation = parse_sigma_inflation(self.network.metadata.get("sigma_inflation", "1"))
+        except ValueError as error:
+            raise StereoGeoError(f"model file {self.model_path} has invalid metadata: {error}") from None
         self.conf["refine"] = {"sigma_inflation": inflation, **self.conf["refine"]}
         # The pose head's own 1-sigma (68th percentiles of its validation errors), when the model records it:
         # how strongly the fusion leans on it, and its sigma when it is all there is.

@@ -176,9 +176,10 @@ def test_export_cli_records_the_pose_heads_sigmas_and_calibrate_leans_on_them(tm
     ckpt = save_checkpoint(tmp_path / "small.pt", model, step=7, training_data="unit-test renders")
     out = tmp_path / "small.onnx"
     runner = CliRunner()
-    bad = runner.invoke(app, ["export-onnx", str(ckpt), "-o", str(out), "--pose-sigmas", "1.5"])
-    assert bad.exit_code == 2 and "--pose-sigmas" in bad.output and "Traceback" not in bad.output
-    assert not out.exists()
+    for option, value in (("--pose-sigmas", "1.5"), ("--sigma-inflation", "2,3"), ("--sigma-inflation", "0")):
+        bad = runner.invoke(app, ["export-onnx", str(ckpt), "-o", str(out), option, value])
+        assert bad.exit_code == 2 and option in bad.output and "Traceback" not in bad.output
+        assert not out.exists()
     good = runner.invoke(
         app,
         [
@@ -190,6 +191,8 @@ def test_export_cli_records_the_pose_heads_sigmas_and_calibrate_leans_on_them(tm
             "1.5,7,0.6",
             "--training-data",
             "26k renders",
+            "--sigma-inflation",
+            "37.8, 43.1,33.2",
         ],
     )
     assert good.exit_code == 0, good.output
@@ -198,7 +201,9 @@ def test_export_cli_records_the_pose_heads_sigmas_and_calibrate_leans_on_them(tm
     assert float(metadata["pose_sigma_direction_deg"]) == 7.0
     assert float(metadata["pose_sigma_scale_rel"]) == 0.6
     assert metadata["training_data"] == "26k renders"
+    assert metadata["sigma_inflation"] == "37.8,43.1,33.2"
     calibrator = Calibrator(out)
+    assert calibrator.conf["refine"]["sigma_inflation"] == (37.8, 43.1, 33.2)
     assert calibrator._learned_scale_sigma == 0.6
     assert calibrator.conf["fuse"]["prior_rotation_sigma_deg"] == 1.5
     assert calibrator.conf["fuse"]["prior_direction_sigma_deg"] == 7.0

@@ -174,3 +174,29 @@ def test_no_usable_pixels_is_not_a_crash():
 def test_shape_mismatch_is_an_error():
     with pytest.raises(ValueError, match="up field"):
         refine_camera(np.zeros((10, 12, 2)), np.zeros((10, 11)))
+
+
+def test_sigma_inflation_per_parameter():
+    """One factor widens every sigma; three widen roll, pitch and vFoV each by its own (as the model's
+    metadata records them), keeping the estimate; bad metadata is an error."""
+    from stereogeo_cli.refine import parse_sigma_inflation
+
+    rng = np.random.default_rng(30)
+    width, height, f, g, *_ = random_camera(rng, (320, 240))
+    up, lat = up_field(g, f, width, height), latitude_field(g, f, width, height)
+    up = up + rng.normal(0, 0.05, up.shape)
+    fits = {s: refine_camera(up, lat, conf={"sigma_inflation": s}) for s in (1.0, 3.0, (2.0, 3.0, 4.0))}
+    base = fits[1.0].sigma
+    for key in ("roll_deg", "pitch_deg", "vfov_deg", "focal_px"):
+        assert fits[3.0].sigma[key] == pytest.approx(3.0 * base[key], rel=1e-9)
+    three = fits[(2.0, 3.0, 4.0)].sigma
+    assert three["roll_deg"] == pytest.approx(2.0 * base["roll_deg"], rel=1e-9)
+    assert three["pitch_deg"] == pytest.approx(3.0 * base["pitch_deg"], rel=1e-9)
+    assert three["focal_px"] == pytest.approx(4.0 * base["focal_px"], rel=1e-9)
+    assert three["vfov_deg"] == pytest.approx(4.0 * base["vfov_deg"], rel=1e-6)
+    assert fits[(2.0, 3.0, 4.0)].focal_px == fits[1.0].focal_px
+    assert parse_sigma_inflation("38") == 38.0
+    assert parse_sigma_inflation("37.8,43.1,33.2") == (37.8, 43.1, 33.2)
+    for bad in ("0", "-1", "1,2", "a", "nan", "1,2,3,4"):
+        with pytest.raises(ValueError):
+            parse_sigma_inflation(bad)

@@ -1,5 +1,11 @@
 """The refiner: camera parameters from perspective fields (Levenberg–Marquardt, NumPy)."""
 
-from stereogeo_cli.refine.lm import CameraFit, default_conf, initial_estimate, refine_camera
+from stereogeo_cli.refine.lm import (
+    CameraFit,
+    default_conf,
+    initial_estimate,
+    parse_sigma_inflation,
+    refine_camera,
+)
 
-__all__ = ["CameraFit", "default_conf", "initial_estimate", "refine_camera"]
+__all__ = ["CameraFit", "default_conf", "initial_estimate", "parse_sigma_inflation", "refine_camera"]

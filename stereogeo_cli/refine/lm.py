@@ -32,8 +32,21 @@ default_conf = {
     "max_vfov_deg": 150.0,
     "init": "fields",  # "fields": roll/pitch read off the fields, focal by a 1-D search; "level": DESIGN §4
     "init_vfov_grid_deg": (15, 25, 35, 45, 55, 65, 80, 95, 110, 130),  # candidates for the focal search
-    "sigma_inflation": 1.0,  # multiplies the 1-sigma figures (network errors are spatially correlated)
+    # multiplies the 1-sigma figures (network errors are spatially correlated): one factor, or three for
+    # (roll, pitch, vFoV)
+    "sigma_inflation": 1.0,
 }
+
+
+def parse_sigma_inflation(text: str) -> float | tuple[float, float, float]:
+    """A model's ``sigma_inflation`` metadata: one factor ``"38"`` or three ``"37.8,43.1,33.2"`` for roll,
+    pitch and vFoV. Raises ValueError unless every factor is a positive number."""
+    values = tuple(float(part) for part in str(text).split(","))
+    if len(values) not in (1, 3) or not all(np.isfinite(v) and v > 0 for v in values):
+        raise ValueError(
+            f"sigma inflation must be one or three positive numbers (roll,pitch,vfov), got {text!r}"
+        )
+    return values[0] if len(values) == 1 else values
 
 
 @dataclass
@@ -401,7 +414,9 @@ def refine_camera(
             cov[np.ix_(free, free)] = H_inv @ Mf @ H_inv
         except np.linalg.LinAlgError:
             cov[np.ix_(free, free)] = np.inf
-    cov *= conf["sigma_inflation"] ** 2
+    roll_s, pitch_s, vfov_s = np.broadcast_to(np.asarray(conf["sigma_inflation"], dtype=float), (3,))
+    scale = np.array([pitch_s, roll_s, vfov_s])  # in the order of the parameters: pitch, roll, log f
+    cov *= np.outer(scale, scale)
 
     roll, pitch = roll_pitch_from_gravity(g)
     f = float(np.exp(log_f))
