@@ -186,8 +186,8 @@ def fuse_relative_pose(
     # Radial distortion bends the epipolar lines (on a stereo rig: vertical disparity growing towards the
     # corners), which no pinhole pose explains; one division-model k per camera, held near 0 by a prior
     # where the matches do not show it. Bounded below so the model does not fold over inside the image,
-    # and above at a mild pincushion: strong pincushion is rare in real lenses, while a free k on few or
-    # clustered matches drifts there.
+    # and above by ``distortion_max_pincushion`` (default 0, barrel only): pincushion is rare and mild in
+    # real lenses, while a free k on few or clustered matches drifted there on undistorted test pairs.
     k_bounds = None
     if conf["distortion"]:
         corner = [np.hypot(K[0, 2], K[1, 2]) / K[0, 0] for K in (K_left, K_right)]
