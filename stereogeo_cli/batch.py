@@ -521,7 +521,15 @@ def calibrate_rig(
         pooled, K_left, K_right, prior_R=chordal_mean([e.R for e in ev]),
         prior_t=t_mean if np.linalg.norm(t_mean) > 1e-9 else ev[0].t_direction,
         conf=calibrator_conf(pinhole).get("fuse"),
+        # the focal ratio is refined with the pose, as for a single pair: the lens shows only with it free
+        focal_sigma_rel=tuple(est.sigma_px / est.focal_px for est in focals),
     )  # fmt: skip
+    focals = tuple(
+        replace(est, focal_px=est.focal_px * scale, sigma_px=est.sigma_px * scale)
+        for est, scale in zip(focals, pose.focal_scale, strict=True)
+    )
+    K_left = intrinsic_matrix(focals[0].focal_px, w_l, h_l)
+    K_right = intrinsic_matrix(focals[1].focal_px, w_r, h_r)
     D_left, D_right = (
         opencv_from_division(k, math.hypot(w, h) / (2.0 * est.focal_px))
         for k, (w, h), est in zip(pose.distortion, ((w_l, h_l), (w_r, h_r)), focals, strict=True)

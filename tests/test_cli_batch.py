@@ -384,3 +384,21 @@ def test_pooling_real_pairs_of_one_rig(shared_data):
     )
     joint_error = np.degrees(rotation_error(joint.R, R_true))
     assert joint_error < np.median(single), (joint_error, sorted(single))
+
+
+def test_same_rig_on_raw_euroc_finds_the_lens_and_the_focal(shared_data, tmp_path):
+    """Ten raw EuRoC pairs of one rig (k1 = -0.28): the joint calibration fits the lens and the focal
+    lengths (their ratio refined with the pose, as for one pair) and beats the pairs' own rotations."""
+    from stereogeo_cli.batch import run_batch
+
+    folder = shared_data / "real-dev" / "euroc"
+    truth = [json.loads(line) for line in (folder / "calib.jsonl").read_text().splitlines()]
+    summary = run_batch(folder, tmp_path, same_rig=True, workers=1)
+    assert summary.rig is not None and summary.failed == 0
+    rig = summary.rig.to_report()
+    R_true = np.array(truth[0]["R"])  # one rig: the same R for every pair
+    for side in ("left", "right"):
+        assert rig[side]["dist"][0] == pytest.approx(truth[0][side]["dist"][0], abs=0.05)
+        assert rig[side]["focal_px"] == pytest.approx(truth[0][side]["K"][0][0], rel=0.03)
+    single = [np.degrees(rotation_error(np.array(o.report["R"]), R_true)) for o in summary.outcomes]
+    assert np.degrees(rotation_error(np.array(rig["R"]), R_true)) < np.median(single), single
