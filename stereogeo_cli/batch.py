@@ -500,6 +500,7 @@ def calibrate_rig(
     """
     from stereogeo_cli.fuse import fuse_relative_pose
     from stereogeo_cli.geometry import (
+        corner_radius,
         gravity_angle,
         intrinsic_matrix,
         opencv_from_division,
@@ -531,8 +532,8 @@ def calibrate_rig(
     K_left = intrinsic_matrix(focals[0].focal_px, w_l, h_l)
     K_right = intrinsic_matrix(focals[1].focal_px, w_r, h_r)
     D_left, D_right = (
-        opencv_from_division(k, math.hypot(w, h) / (2.0 * est.focal_px))
-        for k, (w, h), est in zip(pose.distortion, ((w_l, h_l), (w_r, h_r)), focals, strict=True)
+        opencv_from_division(k, corner_radius(K))
+        for k, K in zip(pose.distortion, (K_left, K_right), strict=True)
     )
     if baseline_m is not None:
         baseline, scale_source = float(baseline_m), "baseline"

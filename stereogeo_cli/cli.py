@@ -198,10 +198,14 @@ def _print_summary(result, console) -> None:
         console.print(f"[yellow]warning:[/yellow] {warning}")
 
 
-_PINHOLE_HELP = (
-    "The images have no lens distortion (rectified or undistorted): fit none. By default one radial "
-    "distortion per camera is fitted where the feature matches clearly show it."
-)
+PinholeFlag = Annotated[
+    bool,
+    typer.Option(
+        "--pinhole",
+        help="The images have no lens distortion (rectified or undistorted): fit none. By default one radial "
+        "distortion per camera is fitted where the feature matches clearly show it.",
+    ),
+]  # calibrate and batch-calibrate
 
 
 @app.command()
@@ -234,13 +238,7 @@ def calibrate(
     focal_right: Annotated[
         float | None, typer.Option(help="The right camera's focal length in pixels, if known.")
     ] = None,
-    pinhole: Annotated[
-        bool,
-        typer.Option(
-            "--pinhole",
-            help=_PINHOLE_HELP,
-        ),
-    ] = False,
+    pinhole: PinholeFlag = False,
     model: Annotated[
         Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
     ] = None,
@@ -317,13 +315,7 @@ def batch_calibrate(
     baseline: Annotated[
         float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
     ] = None,
-    pinhole: Annotated[
-        bool,
-        typer.Option(
-            "--pinhole",
-            help=_PINHOLE_HELP,
-        ),
-    ] = False,
+    pinhole: PinholeFlag = False,
     model: Annotated[
         Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
     ] = None,

@@ -15,7 +15,7 @@ import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.fuse import Matches, RelativePose, fuse_relative_pose, match_features
-from stereogeo_cli.geometry import intrinsic_matrix, opencv_from_division, rotation_angle
+from stereogeo_cli.geometry import corner_radius, intrinsic_matrix, opencv_from_division, rotation_angle
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.images import check_pair
 from stereogeo_cli.network.runtime import FieldNetwork, ViewFields
@@ -186,8 +186,8 @@ class Calibrator:
         K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
         K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
         D_left, D_right = (
-            opencv_from_division(k, math.hypot(fit.width, fit.height) / (2.0 * fit.focal_px))
-            for k, fit in zip(pose.distortion, (fit_left, fit_right), strict=True)
+            opencv_from_division(k, corner_radius(K))
+            for k, K in zip(pose.distortion, (K_left, K_right), strict=True)
         )
 
         if baseline_m is not None:

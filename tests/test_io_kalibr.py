@@ -28,7 +28,7 @@ def test_camchain_matches_the_calibration(tmp_path):
         assert cam["distortion_model"] == "radtan"
         assert cam["intrinsics"] == [K[0, 0], K[1, 1], K[0, 2], K[1, 2]]
         # radtan has four terms: a k3 is folded into k1 k2 over the image
-        assert cam["distortion_coeffs"] == (list(D[:4]) if D[4] == 0 else list(fold_k3(D, K, size)))
+        assert cam["distortion_coeffs"] == (list(D[:4]) if D[4] == 0 else list(fold_k3(D, K)))
         assert cam["resolution"] == list(size)
         assert cam["cam_overlaps"] == [overlap]
         assert cam["rostopic"].startswith("/cam")
@@ -54,7 +54,7 @@ def test_folding_k3_keeps_the_lens_over_the_image():
 
     from stereogeo_cli.geometry import intrinsic_matrix
 
-    K, size = intrinsic_matrix(500.0, 640, 480), (640, 480)
+    K = intrinsic_matrix(500.0, 640, 480)
     D = np.array([-0.3, 0.15, 0.001, -0.002, -0.05])
     rays = np.stack(np.meshgrid(np.linspace(-0.64, 0.64, 21), np.linspace(-0.48, 0.48, 15), [1.0]), -1)
     rays = rays.reshape(-1, 3)
@@ -62,8 +62,8 @@ def test_folding_k3_keeps_the_lens_over_the_image():
     def seen(coefficients):
         return cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, coefficients)[0].reshape(-1, 2)
 
-    folded = fold_k3(D, K, size)
+    folded = fold_k3(D, K)
     assert folded.shape == (4,) and folded[2:].tolist() == [0.001, -0.002]
     assert np.abs(seen(folded) - seen(D)).max() < 0.6
     assert np.abs(seen(D[:4]) - seen(D)).max() > 4.0
-    np.testing.assert_array_equal(fold_k3(D[:4], K, size), D[:4])
+    np.testing.assert_array_equal(fold_k3(D[:4], K), D[:4])

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from stereogeo_cli.fuse.matches import Matches
-from stereogeo_cli.geometry.camera import division_limit, undistort_division
+from stereogeo_cli.geometry.camera import corner_radius, division_limit, undistort_division
 from stereogeo_cli.geometry.epipolar import fundamental_matrix
 from stereogeo_cli.geometry.gravity import (
     couple_rotation_to_gravity,
@@ -190,8 +190,8 @@ def fuse_relative_pose(
     # real lenses, while a free k on few or clustered matches drifted there on undistorted test pairs.
     k_bounds = None
     if conf["distortion"]:
-        corner = [np.hypot(K[0, 2], K[1, 2]) / K[0, 0] for K in (K_left, K_right)]
-        k_bounds = tuple((division_limit(r), conf["distortion_max_pincushion"] / r**2) for r in corner)
+        corners = (corner_radius(K_left), corner_radius(K_right))
+        k_bounds = tuple((division_limit(r), conf["distortion_max_pincushion"] / r**2) for r in corners)
     priors = _Priors(
         gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad, prior_R, prior_t,
         np.radians(conf["prior_rotation_sigma_deg"]), np.radians(conf["prior_direction_sigma_deg"]),

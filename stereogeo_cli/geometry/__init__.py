@@ -3,6 +3,7 @@
 from stereogeo_cli.geometry.camera import (
     ResizeCrop,
     apply_resize_crop,
+    corner_radius,
     division_limit,
     focal_from_vfov,
     fold_k3,
@@ -44,9 +45,9 @@ from stereogeo_cli.geometry.rotation import (
 )
 
 __all__ = [
-    "ResizeCrop", "apply_resize_crop", "division_limit", "focal_from_vfov", "fold_k3", "intrinsic_matrix",
-    "opencv_from_division", "principal_point", "resize_crop_for_network", "undistort_division",
-    "vfov_from_focal", "essential_matrix", "fundamental_matrix",
+    "ResizeCrop", "apply_resize_crop", "corner_radius", "division_limit", "focal_from_vfov", "fold_k3",
+    "intrinsic_matrix", "opencv_from_division", "principal_point", "resize_crop_for_network",
+    "undistort_division", "vfov_from_focal", "essential_matrix", "fundamental_matrix",
     "symmetric_epipolar_distance", "fields_and_jacobians", "latitude_at", "latitude_field", "pixel_grid",
     "up_at", "up_field", "couple_rotation_to_gravity", "gravity_angle", "gravity_coupling_error",
     "gravity_from_roll_pitch", "retract_on_sphere", "roll_pitch_from_gravity", "tangent_basis",

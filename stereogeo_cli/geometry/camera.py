@@ -97,6 +97,11 @@ def apply_resize_crop(image: np.ndarray, rc: ResizeCrop) -> np.ndarray:
 # polynomial model (k1, k2, k3), which every reader understands.
 
 
+def corner_radius(K: np.ndarray) -> float:
+    """The image's largest normalised radius, corner distance / focal (principal point at the centre)."""
+    return float(np.hypot(K[0, 2], K[1, 2]) / K[0, 0])
+
+
 def undistort_division(points: np.ndarray, K: np.ndarray, k: float) -> np.ndarray:
     """Pixels [N x 2] seen through a division-model lens with parameter ``k`` → pinhole pixels of K."""
     points = np.asarray(points, dtype=float)
@@ -132,7 +137,7 @@ def opencv_from_division(k: float, max_radius: float, samples: int = 64) -> np.n
     return np.array([k1, k2, 0.0, 0.0, k3])
 
 
-def fold_k3(D: np.ndarray, K: np.ndarray, size: tuple[int, int], samples: int = 64) -> np.ndarray:
+def fold_k3(D: np.ndarray, K: np.ndarray, samples: int = 64) -> np.ndarray:
     """OpenCV ``[k1, k2, p1, p2, k3]`` → ``[k1', k2', p1, p2]`` closest over the image (for 4-term formats).
 
     The radial factor 1 + k1·r² + k2·r⁴ + k3·r⁶ is refitted without r⁶ in least squares over undistorted
@@ -142,7 +147,7 @@ def fold_k3(D: np.ndarray, K: np.ndarray, size: tuple[int, int], samples: int = 
     if D.size < 5 or D[4] == 0.0:
         return D[:4].copy()
     k1, k2, k3 = D[0], D[1], D[4]
-    r_d = np.hypot(size[0], size[1]) / (2.0 * K[0, 0])  # the corner, normalised
+    r_d = corner_radius(K)
     r_u = r_d
     for _ in range(20):  # fixed point of r_d = r_u·(1 + k1·r_u² + k2·r_u⁴ + k3·r_u⁶)
         r_u = r_d / (1.0 + k1 * r_u**2 + k2 * r_u**4 + k3 * r_u**6)

@@ -22,7 +22,7 @@ def _camera(K: np.ndarray, D: np.ndarray, size: tuple[int, int], overlaps: int, 
         text += (
             f"  # k3 = {flow_list([D[4]])[1:-1]} folded into k1 k2 over the image (radtan has four terms)\n"
         )
-        D = fold_k3(D[:5], K, size)
+        D = fold_k3(D[:5], K)
     return text + (
         f"  cam_overlaps: [{overlaps}]\n"
         f"  camera_model: pinhole\n"
