@@ -144,3 +144,54 @@ def test_init_takes_every_matching_weight_across_a_change_of_architecture(tmp_pa
     torch.save({"model": {"nothing.like.it": torch.zeros(1)}}, tmp_path / "other.pt")
     with pytest.raises(StereoGeoError, match="shares no weights"):
         init_from_checkpoint(new, tmp_path / "other.pt")
+
+
+def test_training_only_the_pose_head_leaves_every_field_weight_and_statistic_alone(tmp_path, tiny_dataset):
+    """``train_only: ["pose_head"]``: the encoder, decoder and field heads (batch-norm statistics included)
+    come out bit-identical, so the fields of the fine-tuned model are the initial model's; the pose head
+    learns, with the epipolar loss on its soft matches."""
+    from stereogeo_cli.network.checkpoint import save_checkpoint
+    from stereogeo_cli.network.model import StereoGeoNet
+
+    torch.manual_seed(3)
+    init = save_checkpoint(tmp_path / "init.pt", StereoGeoNet({"pretrained": False}), training_data="unit")
+    config = _config(
+        tmp_path, tiny_dataset, steps=3, init=str(init), train_only=["pose_head"],
+        loss={"epipolar_weight": 1.0, "camera_weight": 0.0},
+    )  # fmt: skip
+    result = _run_train(["--config", str(config)])
+    assert result.returncode == 0, result.stderr
+    before = torch.load(init, weights_only=True)["model"]
+    after = torch.load(tmp_path / "run" / "latest.pt", weights_only=True)["model"]
+    moved = {k for k in before if not torch.equal(before[k], after[k])}
+    assert moved and all(k.startswith("pose_head.") for k in moved), sorted(moved)[:5]
+    assert "pose_head.descriptor.weight" in moved
+    log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    assert any(r["event"] == "train" and r.get("epipolar", 0) > 0 for r in log)
+
+
+def test_epipolar_loss_vanishes_on_true_matches_and_grows_across_the_epipolar_lines():
+    from stereogeo_cli.geometry import rotation_from_axis_angle
+    from stereogeo_cli.network.losses import epipolar_loss
+
+    rng = np.random.default_rng(0)
+    R = rotation_from_axis_angle(np.radians([0.5, 3.0, -1.0]))
+    T = np.array([-0.3, 0.01, 0.02])
+    focal, half_short = np.array([110.0, 95.0]), 48.0  # a 128 x 96 image
+    X = np.c_[rng.uniform(-2, 2, (200, 2)), rng.uniform(2, 10, 200)]
+    points = []
+    for P, f in ((X, focal[0]), (X @ R.T + T, focal[1])):
+        points.append(P[:, :2] / P[:, 2:] * f / half_short)  # relative to the centre, / half short side
+    as_t = [torch.tensor(a, dtype=torch.float64)[None] for a in (*points, focal, R, T)]
+    exact = epipolar_loss(*as_t[:2], as_t[2], as_t[3], as_t[4], half_short, 0.03)
+    assert float(exact) < 1e-9
+    # 3 px across the (near-horizontal) epipolar lines in one image: the Sampson distance shares the
+    # correction between both images, about 3/√2 px, so each term is near log(1 + (2.1/48 / 0.03)²) ≈ 1.15
+    # (the two focal lengths differ by 15 %: the share is not exactly a half).
+    shift = torch.tensor([0.0, 3 / half_short])
+    across = epipolar_loss(as_t[0], as_t[1] + shift, *as_t[2:5], half_short, 0.03)
+    assert 1.0 < float(across) < 1.45
+    along = epipolar_loss(
+        as_t[0], as_t[1] + torch.tensor([3 / half_short, 0.0]), *as_t[2:5], half_short, 0.03
+    )
+    assert float(along) < 0.1

@@ -70,9 +70,13 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[StereoGeoNet, dict[str, An
         raise StereoGeoError(f"checkpoint {path} does not fit the model: {first_line}") from None
 
 
+# Options added after models were shipped: their values for a checkpoint that predates them.
+LEGACY_CONF: dict[str, Any] = {"pose_match_stride": 16, "pose_scale_votes": False}
+
+
 def model_from_checkpoint(checkpoint: dict[str, Any]) -> StereoGeoNet:
     """Build the model of a checkpoint dict and load its weights (strict), in eval mode."""
-    model = StereoGeoNet({**checkpoint["conf"], "pretrained": False})
+    model = StereoGeoNet({**LEGACY_CONF, **checkpoint["conf"], "pretrained": False})
     model.load_state_dict(checkpoint["model"], strict=True)
     return model.eval()
 

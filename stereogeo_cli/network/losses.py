@@ -27,6 +27,8 @@ default_conf = {
     "rotation_beta": 0.01,  # where the smooth L1 turns from quadratic to linear, radians
     "translation_beta": 0.02,  # the same for the direction terms (T/|T| and the angle, radians)
     "scale_beta": 0.05,  # the same for log(|T_pred| / |T_true|)
+    "epipolar_weight": 0.0,  # robust Sampson distance of the pose head's soft matches to the true epipolars
+    "epipolar_scale": 0.03,  # its scale, in units of half the short side (about 3 px at 224)
 }
 
 
@@ -104,6 +106,38 @@ def refine_views(out: dict, view: str, height: int, width: int, conf: dict):
     return refine_batch(up_flat, lat_flat, cu, cl, x, y, size, g0, f0, conf={"steps": conf["refiner_steps"]})
 
 
+def epipolar_loss(
+    xy_left: torch.Tensor,
+    xy_right: torch.Tensor,
+    focal: torch.Tensor,
+    R: torch.Tensor,
+    T: torch.Tensor,
+    half_short: float,
+    scale: float,
+) -> torch.Tensor:
+    """Mean robust Sampson distance ``log(1 + (d / scale)²)`` of correspondences to the true epipolar lines.
+
+    ``xy_left``, ``xy_right`` [B x N x 2]: points relative to the image centre in units of ``half_short``
+    pixels (the pose head's cell coordinates); ``focal`` [B x 2] pixels of the left and right view; R, T the
+    rig (``X_right = R X_left + T``). The principal point is the centre, as in the training cuts.
+    """
+    rays = []
+    for xy, f in ((xy_left, focal[:, 0]), (xy_right, focal[:, 1])):
+        uv = xy * (half_short / f)[:, None, None]
+        rays.append(torch.cat([uv, torch.ones_like(uv[..., :1])], dim=-1))  # [B x N x 3]
+    tx, ty, tz = T.unbind(-1)
+    zero = torch.zeros_like(tx)
+    skew = torch.stack([zero, -tz, ty, tz, zero, -tx, -ty, tx, zero], dim=-1).reshape(-1, 3, 3)
+    E = skew @ R
+    El = rays[0] @ E.transpose(1, 2)  # [B x N x 3]: E @ left ray
+    Er = rays[1] @ E  # E^T @ right ray
+    residual = (rays[1] * El).sum(-1)
+    denom = El[..., 0] ** 2 + El[..., 1] ** 2 + Er[..., 0] ** 2 + Er[..., 1] ** 2
+    distance2 = residual**2 / denom.clamp_min(1e-12)  # squared, in ray units
+    to_image = (focal.mean(1) / half_short)[:, None] ** 2
+    return torch.log1p(distance2 * to_image / scale**2).mean()
+
+
 def compute_losses(out: dict, batch: dict, conf: dict | None = None, with_refiner: bool = True) -> dict:
     """All loss terms (scalars) and ``total``, for model outputs ``out`` on a training ``batch``."""
     conf = {**default_conf, **(conf or {})}
@@ -159,7 +193,13 @@ def compute_losses(out: dict, batch: dict, conf: dict | None = None, with_refine
             + F.smooth_l1_loss(d_hat, d_gt, beta=beta)
             + F.smooth_l1_loss(torch.acos(cos), torch.zeros_like(cos), beta=beta)
         )
+    if "pose_match_left" in out and conf["epipolar_weight"] > 0 and trans.any():
+        losses["epipolar"] = epipolar_loss(
+            out["pose_match_left"][trans], out["pose_match_right"][trans], batch["focal"][trans],
+            batch["R"][trans], batch["T"][trans], min(height, width) / 2, conf["epipolar_scale"],
+        )  # fmt: skip
     weights = {
+        "epipolar": conf["epipolar_weight"],
         "up": conf["up_weight"], "latitude": conf["latitude_weight"], "confidence": conf["confidence_weight"],
         "camera": conf["camera_weight"], "rotation": conf["rotation_weight"],
         "translation": conf["translation_weight"],

@@ -218,12 +218,18 @@ def cell_coordinates(x: torch.Tensor, stride: int) -> torch.Tensor:
 class PoseHead(nn.Module):
     """Relative pose from soft correspondences between the two views plus their global context.
 
-    Each stride-16 cell of the left view is matched against every cell of the right view: cosine similarity of
-    learned descriptors, softmax with a learned temperature, soft-argmax → the expected right position, its
-    spread and the peak similarity. Per cell, (left position, right position, displacement, spread, peak)
-    and a few context channels go through a shared MLP and are pooled (attention-weighted mean and max);
-    with the avg+max pooled deepest features of both views (the scene's scale cues), an MLP regresses the
-    quaternion and the metric translation. Global pooling alone gives the head no disparity to read.
+    Each cell of the left view (stride 16, or stride 8 with ``match_stride=8``) is matched against every cell
+    of the right view: cosine similarity of learned descriptors, softmax with a learned temperature,
+    soft-argmax → the expected right position, its spread and the peak similarity. Per cell, (left position,
+    right position, displacement, spread, peak) and a few context channels go through a shared MLP and are
+    pooled (attention-weighted mean and max); with the avg+max pooled deepest features of both views (the
+    scene's scale cues), an MLP regresses the quaternion and the metric translation. Global pooling alone
+    gives the head no disparity to read.
+
+    With ``scale_votes`` the length of the translation is not regressed from pooled features: each cell votes
+    for log |T| as its log-displacement plus a learned per-cell term (the log of its depth, in units the
+    context can read: a disparity times a depth is a baseline), and the votes are averaged with learned
+    weights. The MLP's translation output then gives only the direction.
     """
 
     def __init__(
@@ -236,17 +242,32 @@ class PoseHead(nn.Module):
         reduce_dim: int,
         hidden_dim: int,
         translation_init: tuple[float, float, float],
+        match_stride: int = 16,
+        fine_in: int = 0,
+        scale_votes: bool = False,
     ):
         super().__init__()
-        self.descriptor = nn.Conv2d(match_in, match_dim, 1)
-        self.context = ConvBN(match_in, context_dim, act=nn.ReLU, bn_momentum=0.1)
+        self.match_stride, self.scale_votes = match_stride, scale_votes
+        if match_stride == 8:
+            # Stride-8 features with the stride-16 ones upsampled: finer disparities, the same semantics.
+            self.fuse = ConvBN(fine_in + match_in, 2 * match_dim, act=nn.ReLU, bn_momentum=0.1)
+            self.descriptor = nn.Conv2d(2 * match_dim, match_dim, 3, padding=1)
+            self.context = ConvBN(2 * match_dim + reduce_dim, context_dim, act=nn.ReLU, bn_momentum=0.1)
+        elif match_stride == 16:
+            self.descriptor = nn.Conv2d(match_in, match_dim, 1)
+            self.context = ConvBN(match_in, context_dim, act=nn.ReLU, bn_momentum=0.1)
+        else:
+            raise ValueError(f"pose_match_stride must be 8 or 16, got {match_stride}")
         self.log_temperature = nn.Parameter(torch.tensor(math.log(20.0)))
+        extra = 2 if scale_votes else 0  # log |displacement| and a vote logit
         self.point_mlp = nn.Sequential(
-            nn.Linear(9 + context_dim, point_dim),
+            nn.Linear(9 + context_dim + (1 if scale_votes else 0), point_dim),
             nn.ReLU(inplace=True),
             nn.Linear(point_dim, point_dim),
             nn.ReLU(inplace=True),
-            nn.Linear(point_dim, point_dim + 1),  # features and an attention logit
+            nn.Linear(
+                point_dim, point_dim + 1 + extra
+            ),  # features, an attention logit (and a vote, its logit)
         )
         self.reduce = ConvBN(global_in, reduce_dim, act=nn.ReLU, bn_momentum=0.1)
         last = nn.Linear(hidden_dim, 7)
@@ -260,25 +281,36 @@ class PoseHead(nn.Module):
             nn.ReLU(inplace=True),
             last,
         )
+        if scale_votes:
+            with torch.no_grad():  # votes start at log|T| ≈ log(0.2 m) + the displacement's log
+                self.point_mlp[-1].bias[-2] = math.log(0.2) - math.log(0.1)
+        self.matches: tuple[torch.Tensor, ...] | None = None  # training only: the last soft correspondences
 
-    def pool(self, feat: torch.Tensor) -> torch.Tensor:
-        """Features [B x C x h x w] → [B x 2·reduce_dim] (average and maximum over the image)."""
-        x = self.reduce(feat)
-        return torch.cat([x.mean(dim=(2, 3)), x.amax(dim=(2, 3))], dim=1)
+    def match_features(self, fine: torch.Tensor | None, mid: torch.Tensor, reduced: torch.Tensor | None):
+        """One view's (descriptor input, context input) at the matching stride."""
+        if self.match_stride == 16:
+            return mid, mid
+        up_mid = F.interpolate(mid, scale_factor=2.0, mode="bilinear", align_corners=False)
+        x = self.fuse(torch.cat([fine, up_mid], dim=1))
+        up_global = F.interpolate(reduced, scale_factor=4.0, mode="bilinear", align_corners=False)
+        return x, torch.cat([x, up_global], dim=1)
 
-    def correspondences(self, left: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
-        """Stride-16 features of both views → per left cell [B x N_left x (9 + context_dim)]."""
+    def correspondences(
+        self, left: torch.Tensor, right: torch.Tensor, context_left: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Matching features of both views → per left cell [B x N_left x (9 + context_dim)]."""
+        stride = self.match_stride
         dl = F.normalize(self.descriptor(left), dim=1).flatten(2)  # [B x D x Nl]
         dr = F.normalize(self.descriptor(right), dim=1).flatten(2)  # [B x D x Nr]
         cos = torch.bmm(dl.transpose(1, 2), dr)  # [B x Nl x Nr]
         prob = torch.softmax(cos * self.log_temperature.exp(), dim=2)
-        xy_left = cell_coordinates(left, 16).flatten(2).transpose(1, 2)  # [1 x Nl x 2]
-        xy_right = cell_coordinates(right, 16).flatten(2).transpose(1, 2)  # [1 x Nr x 2]
+        xy_left = cell_coordinates(left, stride).flatten(2).transpose(1, 2)  # [1 x Nl x 2]
+        xy_right = cell_coordinates(right, stride).flatten(2).transpose(1, 2)  # [1 x Nr x 2]
         mean = torch.matmul(prob, xy_right)  # [B x Nl x 2]
         spread = (torch.matmul(prob, xy_right * xy_right) - mean * mean).clamp_min(1e-6).sqrt()
         peak = cos.amax(dim=2, keepdim=True)
         xy_left = xy_left.expand(mean.shape[0], -1, -1)
-        context = self.context(left).flatten(2).transpose(1, 2)
+        context = self.context(left if context_left is None else context_left).flatten(2).transpose(1, 2)
         return torch.cat([xy_left, mean, mean - xy_left, spread, peak, context], dim=2)
 
     def forward(
@@ -287,17 +319,37 @@ class PoseHead(nn.Module):
         match_right: torch.Tensor,
         feat_left: torch.Tensor,
         feat_right: torch.Tensor,
+        fine_left: torch.Tensor | None = None,
+        fine_right: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Stride-16 and deepest features of both views → quaternion [B x 4] (w, x, y, z), unit, w ≥ 0;
-        translation [B x 3] in metres."""
-        points = self.point_mlp(self.correspondences(match_left, match_right))  # [B x Nl x P+1]
+        """Stride-16 (and stride-8) and deepest features of both views → quaternion [B x 4] (w, x, y, z),
+        unit, w ≥ 0; translation [B x 3] in metres."""
+        reduced_left, reduced_right = self.reduce(feat_left), self.reduce(feat_right)
+        desc_left, context_left = self.match_features(fine_left, match_left, reduced_left)
+        desc_right, _ = self.match_features(fine_right, match_right, reduced_right)
+        corr = self.correspondences(desc_left, desc_right, context_left)
+        if self.scale_votes:
+            log_shift = torch.log(corr[..., 4:6].norm(dim=-1, keepdim=True) + 1e-3)
+            corr = torch.cat([corr, log_shift], dim=2)
+        if self.training:
+            self.matches = (corr[..., 0:2], corr[..., 2:4])
+        points = self.point_mlp(corr)  # [B x Nl x P+1(+2)]
+        if self.scale_votes:
+            vote_weight = torch.softmax(points[..., -1:], dim=1)
+            log_length = (vote_weight * (points[..., -2:-1] + log_shift)).sum(1)  # [B x 1]
+            points = points[..., :-2]
         attention = torch.softmax(points[..., -1:], dim=1)
         features = points[..., :-1]
         pooled = torch.cat([(attention * features).sum(1), features.amax(1)], dim=1)
-        out = self.mlp(torch.cat([pooled, self.pool(feat_left), self.pool(feat_right)], dim=1))
+        glob = [r.mean(dim=(2, 3)) for r in (reduced_left, reduced_right)]
+        glob += [r.amax(dim=(2, 3)) for r in (reduced_left, reduced_right)]
+        out = self.mlp(torch.cat([pooled, glob[0], glob[2], glob[1], glob[3]], dim=1))
         q = F.normalize(out[:, :4], dim=1, eps=1e-8)
         q = torch.where(q[:, :1] < 0, -q, q)
-        return q, out[:, 4:]
+        t = out[:, 4:]
+        if self.scale_votes:  # direction from the MLP, length from the votes
+            t = F.normalize(t, dim=1, eps=1e-8) * torch.exp(log_length)
+        return q, t
 
 
 class StereoGeoNet(nn.Module):
@@ -312,12 +364,14 @@ class StereoGeoNet(nn.Module):
         "decoder_dim": 64,  # channels of every FPN level (stride 32 → 4)
         "head_dim": 32,  # channels of the hidden layer of each field head
         "coord_channels": True,  # append normalised pixel coordinates to the field heads' input
-        "pose_match_dim": 64,  # descriptor channels for the pose head's stride-16 soft matching
+        "pose_match_dim": 64,  # descriptor channels for the pose head's soft matching
         "pose_context_dim": 16,  # per-cell context channels beside each soft correspondence
         "pose_point_dim": 128,  # width of the per-correspondence MLP
         "pose_reduce_dim": 128,  # 1 x 1 reduction of the 1280 encoder head channels before pooling
         "pose_hidden_dim": 256,  # width of the pose MLP's two hidden layers
         "translation_init": (-0.2, 0.0, 0.0),  # initial translation output in metres (a 20 cm rig)
+        "pose_match_stride": 8,  # soft matches between stride-8 cells (16: stride-16 features alone)
+        "pose_scale_votes": True,  # |T| from per-cell votes (log displacement + learned log depth)
         # Share of the pose head's gradient that reaches the shared encoder in training (the forward pass is
         # unchanged): the metric scale is mostly unknowable from one pair, and its large, noisy gradients
         # would otherwise drown the field heads' in the shared features under gradient clipping.
@@ -350,19 +404,22 @@ class StereoGeoNet(nn.Module):
             c["pose_reduce_dim"],
             c["pose_hidden_dim"],
             tuple(c["translation_init"]),
+            match_stride=int(c["pose_match_stride"]),
+            fine_in=LITE0_SKIP_CHANNELS[8],
+            scale_votes=bool(c["pose_scale_votes"]),
         )
         if c["channels_last"]:  # load_state_dict copies into these tensors and keeps their layout
             self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
 
     def forward_view(
         self, image: torch.Tensor
-    ) -> tuple[dict[str, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]:
+    ) -> tuple[dict[str, torch.Tensor], tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
         """One view: image [B x 3 x H x W] RGB in [0, 1] → fields at stride 4 and pose features.
 
         Returns ``{"up": [B x 2 x H/4 x W/4] unit vectors (image x right, y down), "latitude": [B x H/4 x W/4]
         radians in (-π/2, π/2), "up_confidence", "latitude_confidence": [B x H/4 x W/4] in (0, 1)}`` and the
-        pose features: the encoder's stride-16 features [B x 112 x H/16 x W/16] and its head features
-        [B x 1280 x H/32 x W/32].
+        pose features: the encoder's stride-16 features [B x 112 x H/16 x W/16], its head features
+        [B x 1280 x H/32 x W/32] and its stride-8 features [B x 40 x H/8 x W/8].
         """
         if not torch.jit.is_tracing() and (
             image.shape[-2] % INPUT_MULTIPLE or image.shape[-1] % INPUT_MULTIPLE
@@ -385,7 +442,7 @@ class StereoGeoNet(nn.Module):
             "up_confidence": torch.sigmoid(up[:, 2]),
             "latitude_confidence": torch.sigmoid(lat[:, 1]),
         }
-        return fields, (feats[16], feats[0])
+        return fields, (feats[16], feats[0], feats[8])
 
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
         """Stereo pair → fields of each view and the relative pose.
@@ -406,11 +463,16 @@ class StereoGeoNet(nn.Module):
         if self.training and share != 1.0:  # x·s + stop_grad(x)·(1 − s): the same values, a scaled gradient
             feat_left = tuple(f * share + f.detach() * (1.0 - share) for f in feat_left)
             feat_right = tuple(f * share + f.detach() * (1.0 - share) for f in feat_right)
-        quaternion, translation = self.pose_head(feat_left[0], feat_right[0], feat_left[1], feat_right[1])
+        quaternion, translation = self.pose_head(
+            feat_left[0], feat_right[0], feat_left[1], feat_right[1], feat_left[2], feat_right[2]
+        )
         out = {f"left_{k}": v for k, v in fields_left.items()}
         out.update({f"right_{k}": v for k, v in fields_right.items()})
         out["quaternion"] = quaternion
         out["translation"] = translation
+        if self.training and self.pose_head.matches is not None:  # for the epipolar loss
+            out["pose_match_left"], out["pose_match_right"] = self.pose_head.matches
+            self.pose_head.matches = None
         return out
 
 

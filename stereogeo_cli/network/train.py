@@ -53,6 +53,12 @@ SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
     "workers": (1, "Data-loading processes per training process."),
     "seed": (0, "Model init, batch order."),
     "model_version": (None, "A name for the model (default: OUT's folder name)."),
+    "model": ({}, "StereoGeoNet options (e.g. pose_match_stride), over the model's defaults."),
+    "train_only": (
+        [],
+        "Train only the modules with these name prefixes (e.g. pose_head); the rest is frozen, batch norm "
+        "statistics included, so a new head can be trained without changing the fields.",
+    ),
     "init": (
         None,
         "Start from the weights of this checkpoint (e.g. models/stereogeo.pt) instead of ImageNet; every "
@@ -201,6 +207,16 @@ def validate(
     return metrics
 
 
+def set_training(model: torch.nn.Module, prefixes: tuple[str, ...]) -> None:
+    """Training mode for the trained modules; frozen ones (not under ``prefixes``) stay in eval mode, so
+    their batch-norm statistics do not move."""
+    model.train()
+    if prefixes:
+        for name, module in model.named_modules():
+            if name and not name.startswith(prefixes) and not any(p.startswith(name + ".") for p in prefixes):
+                module.eval()
+
+
 class _Log:
     """Progress lines on stderr and one JSON object per event in OUT/log.jsonl (rank 0 only)."""
 
@@ -232,8 +248,15 @@ def train(conf: dict) -> dict:
     log = _Log(out, rank == 0)
     latest = out / "latest.pt"
 
-    model = StereoGeoNet({"pretrained": True})
-    optimizer = torch.optim.AdamW(model.parameters(), lr=conf["lr"], weight_decay=conf["weight_decay"])
+    model = StereoGeoNet({**conf["model"], "pretrained": True})
+    prefixes = tuple(conf["train_only"])
+    trained = [p for n, p in model.named_parameters() if not prefixes or n.startswith(prefixes)]
+    if not trained:
+        raise StereoGeoError(f"train_only {list(prefixes)} matches no parameter of the model")
+    if prefixes:
+        for name, param in model.named_parameters():
+            param.requires_grad_(name.startswith(prefixes))
+    optimizer = torch.optim.AdamW(trained, lr=conf["lr"], weight_decay=conf["weight_decay"])
     step, best = 0, math.inf
     if conf["init"] and not (conf.get("resume") and latest.is_file()):
         fresh = init_from_checkpoint(model, conf["init"])
@@ -249,7 +272,7 @@ def train(conf: dict) -> dict:
         optimizer.load_state_dict(checkpoint["optimizer"])
         step, best = int(checkpoint["step"]), float(checkpoint.get("best", math.inf))
         log("resume", step=step)
-    model.train()
+    set_training(model, prefixes)
     net: torch.nn.Module = model
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(model)
@@ -309,7 +332,7 @@ def train(conf: dict) -> dict:
             losses = compute_losses(outputs, batch, conf["loss"], with_refiner=step >= conf["refiner_start"])
             optimizer.zero_grad(set_to_none=True)
             losses["total"].backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), conf["clip_grad"])
+            grad_norm = torch.nn.utils.clip_grad_norm_(trained, conf["clip_grad"])
             if torch.isfinite(grad_norm):
                 optimizer.step()
             step += 1
@@ -322,6 +345,7 @@ def train(conf: dict) -> dict:
                 log("train", step=step, lr=lr_at(step, conf), pairs_per_s=rate, **running)
             if val is not None and (step % conf["val_every"] == 0 or step == conf["steps"]):
                 metrics = validate(model, val, conf["val_count"], int(conf["input_short_side"]))
+                set_training(model, prefixes)
                 log("val", step=step, **metrics)
                 score = metrics["roll_median"] + metrics["pitch_median"] + metrics["vfov_median"]
                 if score < best:
@@ -349,7 +373,7 @@ def parse_args(argv: list[str] | None = None) -> dict:
     parser.add_argument("--resume", action="store_true", help="continue from OUT/latest.pt if it exists")
     parser.add_argument("--dump-replica", help=argparse.SUPPRESS)
     for key, value in default_conf.items():
-        if key in ("data", "sizes", "decay_at", "loss"):
+        if key in ("data", "sizes", "decay_at", "loss", "model", "train_only"):
             continue
         kind = type(value) if value is not None else str
         parser.add_argument(f"--{key.replace('_', '-')}", type=kind, default=None, help=SETTINGS[key][1])
