@@ -25,18 +25,18 @@ def table(results: dict) -> str:
     lines = [
         f"**{results['dataset']}** — {m['pairs']['evaluated']} of {m['pairs']['total']} pairs",
         "",
-        "| | roll (°) | pitch (°) | vFoV (°) | focal (rel.) | R (°) | t dir. (°) |",
-        "|---|---|---|---|---|---|---|",
+        "| | roll (°) | pitch (°) | vFoV (°) | focal (rel.) | R (°) | t dir. (°) | |T| (rel.) |",
+        "|---|---|---|---|---|---|---|---|",
         f"| stereogeo, median | {_cell(m, 'roll_deg')} | {_cell(m, 'pitch_deg')} | {_cell(m, 'vfov_deg')} | "
         f"{_cell(m, 'focal_rel', digits=3)} | {_cell(m, 'rotation_error_deg', digits=3)} | "
-        f"{_cell(m, 'direction_error_deg')} |",
+        f"{_cell(m, 'direction_error_deg')} | {_cell(m, 'baseline_error_rel')} |",
         f"| stereogeo, AUC@1/5/10° | {_auc(m, 'roll_deg')} | {_auc(m, 'pitch_deg')} | "
-        f"{_auc(m, 'vfov_deg')} | | | |",
+        f"{_auc(m, 'vfov_deg')} | | | | |",
     ]
     for name, label in (("orb+essential", "ORB + E, **true K**"), ("sift+essential", "SIFT + E, **true K**")):
         lines.append(
             f"| {label}, median | | | | | {_cell(m, f'{name}_rotation_error_deg', digits=3)} | "
-            f"{_cell(m, f'{name}_direction_error_deg')} |"
+            f"{_cell(m, f'{name}_direction_error_deg')} | |"
         )
     for reason in results["skipped"]:
         lines.append(f"\n_skipped: {reason}_")

@@ -537,6 +537,7 @@ def _print_evaluation(results: dict) -> None:
                           *(f"{100 * m[f'auc@{t}']:.1f}%" for t in (1, 5, 10)))  # fmt: skip
     rows = (("focal_rel", "focal (relative)"), ("rotation_error_deg", "rotation (°)"),
             ("direction_error_deg", "t direction (°)"), ("translation_error_m", "T (m)"),
+            ("baseline_error_rel", "baseline length (relative)"),
             ("orb+essential_rotation_error_deg", "ORB + E, true K: rotation (°)"),
             ("sift+essential_rotation_error_deg", "SIFT + E, true K: rotation (°)"),
             ("orb+essential_direction_error_deg", "ORB + E, true K: t direction (°)"),

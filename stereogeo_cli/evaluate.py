@@ -134,6 +134,8 @@ def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False,
             T = np.asarray(record["T"], dtype=float)
             if np.linalg.norm(T) > 1e-9:
                 row["translation_error_m"] = float(np.linalg.norm(c.T - T))
+                # the baseline's length: the metric scale, which only the pose head (or --baseline) gives
+                row["baseline_error_rel"] = abs(float(np.linalg.norm(c.T) / np.linalg.norm(T)) - 1.0)
                 row["direction_error_deg"] = _direction_error_deg(c.T, T)
             row["pose_source"] = result.pose.source
             if baselines:
@@ -181,9 +183,12 @@ def _summaries(rows: list[dict], total: int, failed: int = 0) -> dict:
     focal = column("left_focal_error_rel") + column("right_focal_error_rel")
     if focal:
         metrics["focal_rel"] = {"median": float(np.median(focal)), "mean": float(np.mean(focal))}
-    for key in ("rotation_error_deg", "direction_error_deg", "translation_error_m") + tuple(
-        f"{b}_{k}" for b in BASELINES for k in ("rotation_error_deg", "direction_error_deg")
-    ):
+    for key in (
+        "rotation_error_deg",
+        "direction_error_deg",
+        "translation_error_m",
+        "baseline_error_rel",
+    ) + tuple(f"{b}_{k}" for b in BASELINES for k in ("rotation_error_deg", "direction_error_deg")):
         values = column(key)
         if values:
             v = np.array(values)

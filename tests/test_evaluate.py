@@ -59,6 +59,7 @@ def test_evaluate_json_reports_the_papers_metrics(dataset, onnx_model):
         "rotation_error_deg",
         "direction_error_deg",
         "translation_error_m",
+        "baseline_error_rel",
         "sift+essential_rotation_error_deg",
     ):
         assert set(metrics[key]) >= {"median", "mean", "std"}
