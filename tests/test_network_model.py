@@ -197,7 +197,8 @@ def test_stride8_pose_head_shapes_and_gradients():
 def test_stride8_soft_matching_and_scale_votes_read_a_known_displacement():
     """Right descriptor inputs = left ones moved one stride-8 cell to the left: interior left cells find their
     match 8 px to the left. With constant votes and equal weights, |T| is exp(vote) times the geometric
-    mean of the matched displacements: the length follows the disparity."""
+    mean of the matched parallaxes (displacement minus a point at infinity's): the length follows the
+    disparity."""
     torch.manual_seed(0)
     model = StereoGeoNet(V2).eval()
     head = model.pose_head
@@ -223,9 +224,17 @@ def test_stride8_soft_matching_and_scale_votes_read_a_known_displacement():
         _, t = head(mid, mid, deep, deep, fine, fine)
         reduced = head.reduce(deep)
         desc, context = head.match_features(fine, mid, reduced)
-        shifts = head.correspondences(desc, desc, context)[0, :, 4:6].norm(dim=1)
-    expected = 3.0 * torch.exp(torch.log(shifts + 1e-3).mean())
+        displacement = head.correspondences(desc, desc, context)[0, :, 4:6]
+    expected = 3.0 * torch.exp(torch.log(displacement.norm(dim=1) + 1e-3).mean())
     torch.testing.assert_close(t.norm(), expected, rtol=1e-4, atol=0)
+    # The displacement of a point at infinity (here a set 0.1 to the right) is taken off before voting.
+    with torch.no_grad():
+        head.infinity.bias.copy_(torch.tensor([0.1, 0.0]))
+        _, t = head(mid, mid, deep, deep, fine, fine)
+    parallax = displacement - torch.tensor([0.1, 0.0])
+    torch.testing.assert_close(
+        t.norm(), 3.0 * torch.exp(torch.log(parallax.norm(dim=1) + 1e-3).mean()), rtol=1e-4, atol=0
+    )
 
 
 def test_checkpoints_from_before_the_stride8_head_still_load(tmp_path):

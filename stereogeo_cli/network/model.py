@@ -227,9 +227,10 @@ class PoseHead(nn.Module):
     gives the head no disparity to read.
 
     With ``scale_votes`` the length of the translation is not regressed from pooled features: each cell votes
-    for log |T| as its log-displacement plus a learned per-cell term (the log of its depth, in units the
-    context can read: a disparity times a depth is a baseline), and the votes are averaged with learned
-    weights. The MLP's translation output then gives only the direction.
+    for log |T| as its log-parallax plus a learned per-cell term (the log of its depth, in units the context
+    can read: a disparity times a depth is a baseline), and the votes are averaged with learned weights. The
+    parallax is the displacement minus the one a point at infinity would have (the rotation's share, from
+    the pose MLP). The MLP's translation output then gives only the direction.
     """
 
     def __init__(
@@ -284,6 +285,13 @@ class PoseHead(nn.Module):
         if scale_votes:
             with torch.no_grad():  # votes start at log|T| ≈ log(0.2 m) + the displacement's log
                 self.point_mlp[-1].bias[-2] = math.log(0.2) - math.log(0.1)
+            # The displacement a point at infinity would have (the rotation's share, nearly the same for every
+            # cell under the rigs' few degrees): subtracted before a displacement votes for the baseline.
+            self.infinity = nn.Linear(hidden_dim, 2)
+            nn.init.zeros_(self.infinity.weight)
+            nn.init.zeros_(self.infinity.bias)
+            # How much more a cell's vote weighs per unit of log parallax (far points cannot tell the length).
+            self.vote_parallax_gain = nn.Parameter(torch.tensor(0.0))
         self.matches: tuple[torch.Tensor, ...] | None = None  # training only: the last soft correspondences
 
     def match_features(self, fine: torch.Tensor | None, mid: torch.Tensor, reduced: torch.Tensor | None):
@@ -334,20 +342,24 @@ class PoseHead(nn.Module):
         if self.training:
             self.matches = (corr[..., 0:2], corr[..., 2:4])
         points = self.point_mlp(corr)  # [B x Nl x P+1(+2)]
+        votes = points[..., -2:] if self.scale_votes else None  # per cell: log depth term, vote logit
         if self.scale_votes:
-            vote_weight = torch.softmax(points[..., -1:], dim=1)
-            log_length = (vote_weight * (points[..., -2:-1] + log_shift)).sum(1)  # [B x 1]
             points = points[..., :-2]
         attention = torch.softmax(points[..., -1:], dim=1)
         features = points[..., :-1]
         pooled = torch.cat([(attention * features).sum(1), features.amax(1)], dim=1)
         glob = [r.mean(dim=(2, 3)) for r in (reduced_left, reduced_right)]
         glob += [r.amax(dim=(2, 3)) for r in (reduced_left, reduced_right)]
-        out = self.mlp(torch.cat([pooled, glob[0], glob[2], glob[1], glob[3]], dim=1))
+        hidden = self.mlp[:-1](torch.cat([pooled, glob[0], glob[2], glob[1], glob[3]], dim=1))
+        out = self.mlp[-1](hidden)
         q = F.normalize(out[:, :4], dim=1, eps=1e-8)
         q = torch.where(q[:, :1] < 0, -q, q)
         t = out[:, 4:]
-        if self.scale_votes:  # direction from the MLP, length from the votes
+        if votes is not None:  # direction from the MLP, length from the votes
+            parallax = corr[..., 4:6] - self.infinity(hidden)[:, None, :]
+            log_parallax = torch.log(parallax.norm(dim=-1, keepdim=True) + 1e-3)
+            weight = torch.softmax(votes[..., 1:] + self.vote_parallax_gain * log_parallax, dim=1)
+            log_length = (weight * (votes[..., :1] + log_parallax)).sum(1)  # [B x 1]
             t = F.normalize(t, dim=1, eps=1e-8) * torch.exp(log_length)
         return q, t
 
