@@ -25,7 +25,7 @@ def table(results: dict) -> str:
     lines = [
         f"**{results['dataset']}** — {m['pairs']['evaluated']} of {m['pairs']['total']} pairs",
         "",
-        "| | roll (°) | pitch (°) | vFoV (°) | focal (rel.) | R (°) | t dir. (°) | |T| (rel.) |",
+        "| | roll (°) | pitch (°) | vFoV (°) | focal (rel.) | R (°) | t dir. (°) | baseline (rel.) |",
         "|---|---|---|---|---|---|---|---|",
         f"| stereogeo, median | {_cell(m, 'roll_deg')} | {_cell(m, 'pitch_deg')} | {_cell(m, 'vfov_deg')} | "
         f"{_cell(m, 'focal_rel', digits=3)} | {_cell(m, 'rotation_error_deg', digits=3)} | "
