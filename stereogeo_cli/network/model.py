@@ -260,15 +260,15 @@ class PoseHead(nn.Module):
         else:
             raise ValueError(f"pose_match_stride must be 8 or 16, got {match_stride}")
         self.log_temperature = nn.Parameter(torch.tensor(math.log(20.0)))
-        extra = 2 if scale_votes else 0  # log |displacement| and a vote logit
+        # In: the correspondence, its context (and log |displacement|). Out: features, an attention logit (and
+        # a vote and its logit).
+        votes_in, votes_out = (1, 2) if scale_votes else (0, 0)
         self.point_mlp = nn.Sequential(
-            nn.Linear(9 + context_dim + (1 if scale_votes else 0), point_dim),
+            nn.Linear(9 + context_dim + votes_in, point_dim),
             nn.ReLU(inplace=True),
             nn.Linear(point_dim, point_dim),
             nn.ReLU(inplace=True),
-            nn.Linear(
-                point_dim, point_dim + 1 + extra
-            ),  # features, an attention logit (and a vote, its logit)
+            nn.Linear(point_dim, point_dim + 1 + votes_out),
         )
         self.reduce = ConvBN(global_in, reduce_dim, act=nn.ReLU, bn_momentum=0.1)
         last = nn.Linear(hidden_dim, 7)
