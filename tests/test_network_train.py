@@ -195,3 +195,23 @@ def test_epipolar_loss_vanishes_on_true_matches_and_grows_across_the_epipolar_li
         as_t[0], as_t[1] + torch.tensor([3 / half_short, 0.0]), *as_t[2:5], half_short, 0.03
     )
     assert float(along) < 0.1
+
+
+def test_epipolar_loss_measures_the_fusions_sampson_distance():
+    """The training loss's distance is the fusion's Sampson error (fuse.sampson_errors, pixels) in units of
+    half the short side: one formula, two homes (torch for gradients, NumPy for the product)."""
+    from stereogeo_cli.fuse import sampson_errors
+    from stereogeo_cli.geometry import fundamental_matrix, rotation_from_axis_angle
+    from stereogeo_cli.network.losses import epipolar_loss
+
+    rng = np.random.default_rng(1)
+    R, T = rotation_from_axis_angle(np.radians([1.0, -2.0, 0.5])), np.array([-0.2, 0.02, -0.01])
+    focal, half_short, scale = np.array([150.0, 120.0]), 64.0, 0.03
+    xy_left, xy_right = rng.uniform(-1, 1, (1, 40, 2)), rng.uniform(-1, 1, (1, 40, 2))
+    K = [np.diag([f, f, 1.0]) for f in focal]  # centred principal point: pixels relative to the centre
+    d = sampson_errors(
+        fundamental_matrix(K[0], K[1], R, T), xy_left[0] * half_short, xy_right[0] * half_short
+    )
+    expected = np.mean(np.log1p((d / (half_short * scale)) ** 2))
+    as_t = [torch.tensor(a, dtype=torch.float64) for a in (xy_left, xy_right, focal[None], R[None], T[None])]
+    np.testing.assert_allclose(float(epipolar_loss(*as_t, half_short, scale)), expected, rtol=1e-9)

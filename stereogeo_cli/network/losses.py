@@ -118,24 +118,27 @@ def epipolar_loss(
     """Mean robust Sampson distance ``log(1 + (d / scale)²)`` of correspondences to the true epipolar lines.
 
     ``xy_left``, ``xy_right`` [B x N x 2]: points relative to the image centre in units of ``half_short``
-    pixels (the pose head's cell coordinates); ``focal`` [B x 2] pixels of the left and right view; R, T the
-    rig (``X_right = R X_left + T``). The principal point is the centre, as in the training cuts.
+    pixels (the pose head's cell coordinates), and d in the same units; ``focal`` [B x 2] pixels of the left
+    and right view; R, T the rig (``X_right = R X_left + T``). The principal point is the centre, as in the
+    training cuts. d is the torch twin of :func:`stereogeo_cli.fuse.sampson_errors` (a test holds them equal).
     """
-    rays = []
-    for xy, f in ((xy_left, focal[:, 0]), (xy_right, focal[:, 1])):
-        uv = xy * (half_short / f)[:, None, None]
-        rays.append(torch.cat([uv, torch.ones_like(uv[..., :1])], dim=-1))  # [B x N x 3]
     tx, ty, tz = T.unbind(-1)
     zero = torch.zeros_like(tx)
     skew = torch.stack([zero, -tz, ty, tz, zero, -tx, -ty, tx, zero], dim=-1).reshape(-1, 3, 3)
-    E = skew @ R
-    El = rays[0] @ E.transpose(1, 2)  # [B x N x 3]: E @ left ray
-    Er = rays[1] @ E  # E^T @ right ray
-    residual = (rays[1] * El).sum(-1)
-    denom = El[..., 0] ** 2 + El[..., 1] ** 2 + Er[..., 0] ** 2 + Er[..., 1] ** 2
-    distance2 = residual**2 / denom.clamp_min(1e-12)  # squared, in ray units
-    to_image = (focal.mean(1) / half_short)[:, None] ** 2
-    return torch.log1p(distance2 * to_image / scale**2).mean()
+
+    def k_inverse(f: torch.Tensor) -> torch.Tensor:  # K⁻¹ of a centred pinhole camera, [B x 3 x 3]
+        return torch.diag_embed(torch.stack([1 / f, 1 / f, torch.ones_like(f)], dim=-1))
+
+    F_ = k_inverse(focal[:, 1]).transpose(1, 2) @ skew @ R @ k_inverse(focal[:, 0])
+    left, right = (
+        torch.cat([xy * half_short, torch.ones_like(xy[..., :1])], dim=-1) for xy in (xy_left, xy_right)
+    )
+    Fl = left @ F_.transpose(1, 2)  # [B x N x 3]: F @ left point
+    Ftr = right @ F_  # Fᵀ @ right point
+    algebraic = (right * Fl).sum(-1)
+    denom = Fl[..., 0] ** 2 + Fl[..., 1] ** 2 + Ftr[..., 0] ** 2 + Ftr[..., 1] ** 2
+    distance2 = algebraic**2 / denom.clamp_min(1e-12)  # pixels²
+    return torch.log1p(distance2 / (half_short * scale) ** 2).mean()
 
 
 def compute_losses(out: dict, batch: dict, conf: dict | None = None, with_refiner: bool = True) -> dict:

@@ -292,7 +292,6 @@ class PoseHead(nn.Module):
             nn.init.zeros_(self.infinity.bias)
             # How much more a cell's vote weighs per unit of log parallax (far points cannot tell the length).
             self.vote_parallax_gain = nn.Parameter(torch.tensor(0.0))
-        self.matches: tuple[torch.Tensor, ...] | None = None  # training only: the last soft correspondences
 
     def match_features(self, fine: torch.Tensor | None, mid: torch.Tensor, reduced: torch.Tensor | None):
         """One view's (descriptor input, context input) at the matching stride."""
@@ -329,9 +328,10 @@ class PoseHead(nn.Module):
         feat_right: torch.Tensor,
         fine_left: torch.Tensor | None = None,
         fine_right: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
         """Stride-16 (and stride-8) and deepest features of both views → quaternion [B x 4] (w, x, y, z),
-        unit, w ≥ 0; translation [B x 3] in metres."""
+        unit, w ≥ 0; translation [B x 3] in metres; the soft matches (left cell, expected right position)
+        [B x N_left x 2] each, in the cells' normalised coordinates (for the epipolar loss)."""
         reduced_left, reduced_right = self.reduce(feat_left), self.reduce(feat_right)
         desc_left, context_left = self.match_features(fine_left, match_left, reduced_left)
         desc_right, _ = self.match_features(fine_right, match_right, reduced_right)
@@ -339,8 +339,6 @@ class PoseHead(nn.Module):
         if self.scale_votes:
             log_shift = torch.log(corr[..., 4:6].norm(dim=-1, keepdim=True) + 1e-3)
             corr = torch.cat([corr, log_shift], dim=2)
-        if self.training:
-            self.matches = (corr[..., 0:2], corr[..., 2:4])
         points = self.point_mlp(corr)  # [B x Nl x P+1(+2)]
         votes = points[..., -2:] if self.scale_votes else None  # per cell: log depth term, vote logit
         if self.scale_votes:
@@ -348,9 +346,10 @@ class PoseHead(nn.Module):
         attention = torch.softmax(points[..., -1:], dim=1)
         features = points[..., :-1]
         pooled = torch.cat([(attention * features).sum(1), features.amax(1)], dim=1)
-        glob = [r.mean(dim=(2, 3)) for r in (reduced_left, reduced_right)]
-        glob += [r.amax(dim=(2, 3)) for r in (reduced_left, reduced_right)]
-        hidden = self.mlp[:-1](torch.cat([pooled, glob[0], glob[2], glob[1], glob[3]], dim=1))
+        scene = [
+            torch.cat([r.mean(dim=(2, 3)), r.amax(dim=(2, 3))], dim=1) for r in (reduced_left, reduced_right)
+        ]
+        hidden = self.mlp[:-1](torch.cat([pooled, *scene], dim=1))
         out = self.mlp[-1](hidden)
         q = F.normalize(out[:, :4], dim=1, eps=1e-8)
         q = torch.where(q[:, :1] < 0, -q, q)
@@ -361,7 +360,7 @@ class PoseHead(nn.Module):
             weight = torch.softmax(votes[..., 1:] + self.vote_parallax_gain * log_parallax, dim=1)
             log_length = (weight * (votes[..., :1] + log_parallax)).sum(1)  # [B x 1]
             t = F.normalize(t, dim=1, eps=1e-8) * torch.exp(log_length)
-        return q, t
+        return q, t, (corr[..., 0:2], corr[..., 2:4])
 
 
 class StereoGeoNet(nn.Module):
@@ -475,16 +474,15 @@ class StereoGeoNet(nn.Module):
         if self.training and share != 1.0:  # x·s + stop_grad(x)·(1 − s): the same values, a scaled gradient
             feat_left = tuple(f * share + f.detach() * (1.0 - share) for f in feat_left)
             feat_right = tuple(f * share + f.detach() * (1.0 - share) for f in feat_right)
-        quaternion, translation = self.pose_head(
+        quaternion, translation, matches = self.pose_head(
             feat_left[0], feat_right[0], feat_left[1], feat_right[1], feat_left[2], feat_right[2]
         )
         out = {f"left_{k}": v for k, v in fields_left.items()}
         out.update({f"right_{k}": v for k, v in fields_right.items()})
         out["quaternion"] = quaternion
         out["translation"] = translation
-        if self.training and self.pose_head.matches is not None:  # for the epipolar loss
-            out["pose_match_left"], out["pose_match_right"] = self.pose_head.matches
-            self.pose_head.matches = None
+        if self.training:  # for the epipolar loss
+            out["pose_match_left"], out["pose_match_right"] = matches
         return out
 
 
