@@ -64,6 +64,9 @@ def make_data(
     baseline_max: Annotated[float, typer.Option(help="Longest baseline, in metres.")] = 0.8,
     max_angle: Annotated[float, typer.Option(help="Largest rig roll and pitch, in degrees.")] = 45.0,
     outdoor_share: Annotated[float, typer.Option(help="Share of rendered scenes that are outdoor.")] = 0.5,
+    close_share: Annotated[
+        float, typer.Option(help="Share of indoor scenes that are close range (a desk seen from 0.35–1.5 m).")
+    ] = 0.25,
     panorama_share: Annotated[
         float, typer.Option(help="Share of pairs that are two crops of one panorama (needs --panoramas).")
     ] = 0.2,
@@ -103,6 +106,7 @@ def make_data(
             baseline=(baseline_min, baseline_max),
             max_angle=max_angle,
             outdoor_share=outdoor_share,
+            close_share=close_share,
             panorama_share=panorama_share,
             augment=augment,
             depth=depth,

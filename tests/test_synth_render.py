@@ -59,7 +59,7 @@ def test_projection_follows_the_pixel_centre_convention(renderer, edge):
 
 def test_left_depth_reprojects_onto_right_depth(renderer):
     for index in range(10):
-        kind = ("room", "corridor", "street", "open")[index % 4]
+        kind = ("room", "corridor", "desk", "street", "open")[index % 5]
         sample = sample_pair(7, index, CONFIG, renderer, kind=kind)
         agreement = depth_agreement(sample.depth_left, sample.depth_right, sample.calib)
         assert agreement.fraction >= 0.95, (index, kind, agreement)
@@ -97,8 +97,48 @@ def test_calib_is_consistent(renderer):
         roll, pitch = np.degrees(roll_pitch_from_gravity(gl))
         assert abs(roll) <= 45 + 1e-9 and abs(pitch) <= 45 + 1e-9
         assert 0.05 - 1e-9 <= np.linalg.norm(T) <= 0.8 + 1e-9
+        if c["scene"] == "desk":
+            assert np.linalg.norm(T) <= 0.375 + 1e-9  # a quarter of the longest viewing distance
         # the right camera sits to the right of the left one: its centre -Rᵀ T has x > 0
         assert (-R.T @ T)[0] > 0
+
+
+def test_desk_scenes_are_close_range_with_a_short_baseline(renderer):
+    config = CONFIG.replace(baseline_m=(0.04, 0.5))
+    medians = []
+    for index in range(8):
+        sample = sample_pair(11, index, config, renderer, kind="desk")
+        c = sample.calib
+        assert c["scene"] == "desk"
+        depth = sample.depth_left[sample.depth_left > 0]
+        assert depth.size > 0.9 * sample.depth_left.size  # a closed room: every pixel sees a surface
+        median = float(np.median(depth))
+        medians.append(median)
+        baseline = c["baseline_m"]
+        # within the sampler's range, and at most a quarter of the 0.35–1.5 m viewing distance
+        assert 0.04 - 1e-9 <= baseline <= 0.375 + 1e-9
+        assert baseline <= 0.6 * median, (index, baseline, median)
+        # the cameras keep their 0.3 m clearance: z-depth times the ray length is the distance (1 cm slack)
+        K = np.array(c["left"]["K"])
+        ys, xs = np.nonzero(sample.depth_left > 0)
+        ray = np.hypot(np.hypot((xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1]), 1.0)
+        assert np.min(sample.depth_left[ys, xs] * ray) > 0.29
+    assert 0.3 < np.median(medians) < 1.8, medians
+
+
+def test_close_share_only_changes_the_indoor_scenes_it_turns_into_desks(renderer):
+    # datasets rendered before desks existed are reproduced with close_share = 0
+    none, all_indoor = CONFIG.replace(close_share=0.0), CONFIG.replace(close_share=1.0)
+    kinds = []
+    for index in range(8):
+        a, b = sample_pair(7, index, none, renderer), sample_pair(7, index, all_indoor, renderer)
+        assert a.calib["scene"] != "desk"
+        kinds.append((a.calib["scene"], b.calib["scene"]))
+        if a.calib["scene"] in ("street", "open") or a.calib["kind"] == "panorama":
+            assert b.calib == a.calib and np.array_equal(a.left, b.left)
+        else:
+            assert b.calib["scene"] == "desk"
+    assert {"desk"} <= {k for _, k in kinds} and {"street", "open"} & {k for k, _ in kinds}
 
 
 def test_outdoor_horizon_lies_on_the_rendered_horizon(renderer):

@@ -22,6 +22,7 @@ class SynthConfig:
     toe_in_deg: float = 4.0  # largest relative rotation between the cameras otherwise, degrees
     panorama_share: float = 0.2  # share of pairs that are two crops of one panorama (T = 0)
     outdoor_share: float = 0.5  # share of rendered scenes that are outdoor
+    close_share: float = 0.25  # share of indoor scenes that are close range (a desk seen from 0.35–1.5 m)
     augment: float = 1.0  # strength of noise, blur and exposure augmentation (0 = none)
     msaa: int = 4  # multisample anti-aliasing samples (textures are also mipmapped)
     depth: bool = False  # also return z-depth maps (metres) of rendered pairs

@@ -170,8 +170,8 @@ def sample_pair(
 ) -> StereoSample:
     """Render pair ``index`` of the dataset ``seed``: the same arguments always give the same bytes.
 
-    kind: force "panorama" or a scene kind ("room", "corridor", "street", "open"); by default drawn from
-    the config's shares (panorama crops only when ``config.panoramas`` is set).
+    kind: force "panorama" or a scene kind ("room", "corridor", "desk", "street", "open"); by default
+    drawn from the config's shares (panorama crops only when ``config.panoramas`` is set).
     """
     cfg = config or SynthConfig()
     renderer = renderer or get_renderer(seed, cfg)
@@ -183,6 +183,9 @@ def sample_pair(
         if outdoor
         else ("room" if rng.random() < 0.75 else "corridor")
     )
+    # its own stream, so that close_share = 0 renders exactly what datasets from before "desk" hold
+    if not outdoor and np.random.default_rng([seed, index, 2]).random() < cfg.close_share:
+        scene_kind = "desk"
     if kind is not None:
         use_panorama, scene_kind = kind == "panorama", kind
     rig_sample = sample_rig(rng, cfg)
@@ -211,7 +214,7 @@ def sample_pair(
             depth_right = np.zeros(right.shape[:2], np.float32)
     else:
         for attempt in range(SCENE_ATTEMPTS):
-            scene = build_scene(rng, rig_sample, renderer.materials, scene_kind)
+            scene = build_scene(rng, rig_sample, renderer.materials, scene_kind, baseline_m=cfg.baseline_m)
             rig = scene.rig
             vaos = renderer.upload(scene)
             left = renderer.render_color(rig.left, sky_index, sky_yaw, scene, vaos)

@@ -16,7 +16,7 @@ from stereogeo_cli.synth.rigs import Rig, RigSample
 from stereogeo_cli.synth.textures import Material
 
 VERTEX_FLOATS = 13  # position 3, normal 3, uv 2, layer 1, tint 3, mirror 1
-SCENE_KINDS = ("room", "corridor", "street", "open")
+SCENE_KINDS = ("room", "corridor", "desk", "street", "open")
 _CLEARANCE = 0.3  # metres between a camera centre and any surface
 _UNIT_SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
 
@@ -320,6 +320,20 @@ def build_room(
     height = float(size[2])
     rig = _place_rig_in_box(rng, rig_sample, half, (0.3, min(2.0, height - 0.5)), corridor)
     mesh = MeshBuilder()
+    _room_shell(rng, mesh, materials, half, height, corridor)
+    placer = _Placer(mesh, rig)
+    if objects:
+        _furnish(rng, placer, materials, half, height, corridor)
+    lamp = (rng.uniform(-half[0], half[0]) * 0.6, rng.uniform(-half[1], half[1]) * 0.6, height - 0.2)
+    surfaces, windows = mesh.arrays()
+    kind = "corridor" if corridor else "room"
+    return Scene(kind, surfaces, windows, _lighting_indoor(rng, lamp), float(rng.random()), 0.05, 200.0, rig)
+
+
+def _room_shell(
+    rng, mesh: MeshBuilder, materials: MaterialIndex, half, height: float, corridor: bool
+) -> None:
+    """Floor, ceiling, four decorated walls and ceiling lights of the room [-half, half] × [0, height]."""
     wall = materials.pick(rng, "wall")
     floor, ceiling = materials.pick(rng, "floor"), materials.pick(rng, "ceiling")
     hx, hy = half
@@ -338,13 +352,6 @@ def build_room(
         mesh.quad(start3, along3 * length, (0, 0, -height), wall, uv_offset=(k * 0.37, 0), normal=in3)
         _decorate_wall(rng, mesh, materials, start3, along3, in3, length, height, corridor)
     _ceiling_lights(rng, mesh, materials, half, height)
-    placer = _Placer(mesh, rig)
-    if objects:
-        _furnish(rng, placer, materials, half, height, corridor)
-    lamp = (rng.uniform(-hx, hx) * 0.6, rng.uniform(-hy, hy) * 0.6, height - 0.2)
-    surfaces, windows = mesh.arrays()
-    kind = "corridor" if corridor else "room"
-    return Scene(kind, surfaces, windows, _lighting_indoor(rng, lamp), float(rng.random()), 0.05, 200.0, rig)
 
 
 def _ceiling_lights(rng, mesh: MeshBuilder, materials: MaterialIndex, half, height) -> None:
@@ -461,6 +468,97 @@ def _furnish(rng, placer: _Placer, materials, half, height, corridor) -> None:
                 placer.box(item_xy, item, size[2], yaw + rng.normal(0, 0.3), look, exclusive=False)
         else:
             placer.box(xy, size, 0.0, yaw, sides)
+
+
+def build_desk(
+    rng, rig_sample: RigSample, materials: MaterialIndex, objects: bool = True, baseline_m=(0.05, 0.8)
+) -> Scene:
+    """Close range: a cluttered desk or workbench against a room's wall, and shelves above it, seen from
+    0.35–1.5 m. The baseline is redrawn log-uniform within ``baseline_m`` up to a quarter of that distance,
+    as on hand-held and tabletop rigs."""
+    distance = float(np.exp(rng.uniform(np.log(0.35), np.log(1.5))))  # camera to the middle of the desk
+    lo, hi = baseline_m
+    baseline = float(np.exp(rng.uniform(np.log(lo), np.log(np.clip(0.25 * distance, lo, hi)))))
+    rig_sample = replace(rig_sample, offset=rig_sample.offset * baseline / rig_sample.baseline)
+    if rig_sample.pitch > 0 and rng.random() < 0.75:  # one looks down at a desk more often than up
+        rig_sample = replace(rig_sample, pitch=-rig_sample.pitch)
+    top_z = rng.uniform(0.7, 0.95) if rng.random() < 0.8 else rng.uniform(0.4, 0.55)  # desk or low table
+    desk = np.array([rng.uniform(1.0, 2.4), rng.uniform(0.5, 0.9)])  # along the wall, away from it
+    size = np.array([rng.uniform(2.5, 6.0), rng.uniform(2.5, 6.0), rng.uniform(2.4, 3.2)])
+    size[0] = max(size[0], desk[0] + 0.4)
+    size[1] = max(size[1], desk[1] + distance + 1.2)
+    half, height = size[:2] / 2, float(size[2])
+    desk_xy = np.array([rng.uniform(-1, 1) * (half[0] - desk[0] / 2 - 0.1), -half[1] + desk[1] / 2 + 0.01])
+    # the left camera above and in front of the desk, facing the wall (-y) within ±25°
+    yaw = -np.pi / 2 + float(np.clip(rng.normal(0.0, 0.25), -0.45, 0.45))
+    rise = rng.uniform(0.1, 0.75) * distance + 0.1  # above the desk top
+    ahead = np.sqrt(max(distance**2 - rise**2, 0.0))
+    center = np.array([desk_xy[0] - ahead * np.cos(yaw), desk_xy[1] - ahead * np.sin(yaw), top_z + rise])
+    rig = rig_sample.place(center, yaw)
+    for _ in range(20):  # step back until both cameras keep clear of the desk top
+        if all(
+            _box_distance(c.center, desk_xy, (*desk, top_z), 0.0, 0.0) > _CLEARANCE and c.center[1] > -half[1]
+            for c in (rig.left, rig.right)
+        ):
+            break
+        center = center - 0.05 * np.array([np.cos(yaw), np.sin(yaw), -1.0])
+        rig = rig_sample.place(center, yaw)
+    mesh = MeshBuilder()
+    _room_shell(rng, mesh, materials, half, height, corridor=False)
+    placer = _Placer(mesh, rig)
+    wood = materials.pick(rng, "object", tile=(rng.uniform(0.4, 1.2),) * 2)
+    placer.box(desk_xy, (*desk, 0.04), top_z - 0.04, 0.0, wood, exclusive=False)
+    placer.footprints.append((desk_xy, 0.5 * float(np.hypot(*desk))))
+    for sx in (-1, 1):  # side panels
+        placer.box(
+            (desk_xy[0] + sx * (desk[0] / 2 - 0.02), desk_xy[1]),
+            (0.03, desk[1], top_z - 0.04),
+            0.0,
+            0.0,
+            wood,
+            exclusive=False,
+        )
+    if objects:
+        _clutter(rng, placer, materials, desk_xy, desk, top_z, count=int(rng.integers(6, 25)))
+        z = top_z + rng.uniform(0.3, 0.5)
+        for _ in range(int(rng.integers(0, 4))):  # shelves on the wall above the desk
+            if z > height - 0.3:
+                break
+            shelf = np.array([desk[0] * rng.uniform(0.5, 1.0), rng.uniform(0.18, 0.32)])
+            shelf_xy = np.array(
+                [desk_xy[0] + rng.uniform(-0.5, 0.5) * (desk[0] - shelf[0]), -half[1] + shelf[1] / 2 + 0.005]
+            )
+            if placer.box(shelf_xy, (*shelf, 0.025), z - 0.025, 0.0, wood, exclusive=False):
+                _clutter(rng, placer, materials, shelf_xy, shelf, z, count=int(rng.integers(3, 12)))
+            z += rng.uniform(0.3, 0.45)
+        _furnish(rng, placer, materials, half, height, corridor=False)
+    lamp = (
+        desk_xy[0] + rng.uniform(-0.5, 0.5),
+        desk_xy[1] + rng.uniform(0.2, 1.0),
+        top_z + rng.uniform(0.5, 1.5),
+    )
+    surfaces, windows = mesh.arrays()
+    return Scene(
+        "desk", surfaces, windows, _lighting_indoor(rng, lamp), float(rng.random()), 0.02, 200.0, rig
+    )
+
+
+def _clutter(rng, placer: _Placer, materials, xy, extent, z0: float, count: int) -> None:
+    """Books, boxes, cups and devices (3–35 cm) standing on the surface of size ``extent`` centred at xy,
+    some stacked; small items get textures sized to them, so their detail survives at close range."""
+    for _ in range(count):
+        item = np.array([rng.uniform(0.03, 0.35), rng.uniform(0.03, 0.3), rng.uniform(0.02, 0.3)])
+        item[:2] = np.minimum(item[:2], np.asarray(extent) * 0.9)
+        at = np.asarray(xy) + rng.uniform(-0.5, 0.5, 2) * (np.asarray(extent) - item[:2])
+        look = materials.pick(
+            rng,
+            "poster" if rng.random() < 0.5 else "object",
+            tile=tuple(float(v) for v in np.max(item[:2]) * rng.uniform(0.7, 2.0, 2)),
+        )
+        yaw = float(rng.normal(0.0, 0.4))
+        if placer.box(at, tuple(item), z0, yaw, look, exclusive=False) and rng.random() < 0.25:
+            top = item * np.array([rng.uniform(0.5, 1.0), rng.uniform(0.5, 1.0), rng.uniform(0.3, 1.0)])
+            placer.box(at, tuple(top), z0 + item[2], yaw + rng.normal(0, 0.2), look, exclusive=False)
 
 
 def build_street(rng, rig_sample: RigSample, materials: MaterialIndex, objects: bool = True) -> Scene:
@@ -621,13 +719,23 @@ def build_open(rng, rig_sample: RigSample, materials: MaterialIndex, objects: bo
 
 
 def build_scene(
-    rng, rig_sample: RigSample, materials: MaterialIndex, kind: str, objects: bool = True
+    rng,
+    rig_sample: RigSample,
+    materials: MaterialIndex,
+    kind: str,
+    objects: bool = True,
+    baseline_m=(0.05, 0.8),
 ) -> Scene:
-    """A scene of the given kind (one of SCENE_KINDS) around a rig drawn by the rig sampler."""
+    """A scene of the given kind (one of SCENE_KINDS) around a rig drawn by the rig sampler.
+
+    baseline_m: the sampler's baseline range, within which close-range scenes draw their shorter baseline.
+    """
     if kind == "room":
         return build_room(rng, rig_sample, materials, corridor=False, objects=objects)
     if kind == "corridor":
         return build_room(rng, rig_sample, materials, corridor=True, objects=objects)
+    if kind == "desk":
+        return build_desk(rng, rig_sample, materials, objects=objects, baseline_m=baseline_m)
     if kind == "street":
         return build_street(rng, rig_sample, materials, objects=objects)
     if kind == "open":
