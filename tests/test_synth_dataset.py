@@ -71,6 +71,21 @@ def test_resume_refuses_other_settings(tmp_path):
         make_dataset(tmp_path, 2, seed=2, config=CONFIG, progress=False)
 
 
+def test_folders_made_before_close_range_scenes_resume_with_close_share_zero(tmp_path):
+    from stereogeo_cli.errors import StereoGeoError
+
+    old = CONFIG.replace(close_share=0.0)
+    make_dataset(tmp_path, 1, seed=1, config=old, progress=False)
+    settings = tmp_path / "make-data.json"
+    text = json.loads(settings.read_text())
+    del text["config"]["close_share"]  # as written before the setting existed
+    settings.write_text(json.dumps(text))
+    make_dataset(tmp_path, 2, seed=1, config=old, progress=False)
+    assert len((tmp_path / "calib.jsonl").read_text().splitlines()) == 2
+    with pytest.raises(StereoGeoError, match="other settings"):
+        make_dataset(tmp_path, 3, seed=1, config=CONFIG.replace(close_share=0.5), progress=False)
+
+
 def test_cli_writes_dataset_and_preview(tmp_path):
     runner = CliRunner()
     out, sheet = tmp_path / "set", tmp_path / "sheet.png"
@@ -87,6 +102,7 @@ def test_cli_writes_dataset_and_preview(tmp_path):
     [
         ["--aspects", "4:x"],
         ["--vfov-min", "120", "--vfov-max", "30"],
+        ["--close-share", "1.5"],
         ["--textures", "/nonexistent/folder"],
         [],  # neither an output folder nor --preview
     ],

@@ -66,6 +66,9 @@ def write_sample(folder: Path, sample: StereoSample) -> str:
     return json.dumps(sample.calib, separators=(", ", ": "))
 
 
+_ADDED_SETTINGS = {"close_share": 0.0}  # before desks existed, no scene was one
+
+
 def _settings(seed: int, config: SynthConfig) -> dict:
     d = asdict(config)
     d = {k: (str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
@@ -106,6 +109,9 @@ def _prepare(folder: Path, seed: int, config: SynthConfig) -> None:
     settings = _settings(seed, config)
     if settings_path.exists():
         previous = json.loads(settings_path.read_text())
+        # settings added since a folder was made take the value that renders what it holds
+        for key, value in _ADDED_SETTINGS.items():
+            previous.get("config", {}).setdefault(key, value)
         if previous != settings:
             raise StereoGeoError(
                 f"{folder} holds a dataset made with other settings ({settings_path}); "
