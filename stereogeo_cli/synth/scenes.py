@@ -2,8 +2,9 @@
 
 Indoor: rooms (3–12 m) and corridors with doors, windows (which show the panorama at infinity),
 pictures and furniture standing on the floor. Outdoor: streets with pavements, building blocks 5–40 m
-tall, cars, poles and street furniture; and open ground (plazas, car parks). The rig is placed first and
-objects keep clear of both cameras, so no camera is ever inside or touching geometry.
+tall, cars, poles and street furniture; and open ground (plazas, car parks). Close range: a cluttered desk
+and shelves seen from 0.35–1.5 m. The rig is placed first and objects keep clear of both cameras, so no
+camera is ever inside or touching geometry.
 """
 
 from __future__ import annotations
@@ -320,7 +321,7 @@ def build_room(
     height = float(size[2])
     rig = _place_rig_in_box(rng, rig_sample, half, (0.3, min(2.0, height - 0.5)), corridor)
     mesh = MeshBuilder()
-    _room_shell(rng, mesh, materials, half, height, corridor)
+    _room_shell(rng, mesh, materials, -half, half, height, corridor)
     placer = _Placer(mesh, rig)
     if objects:
         _furnish(rng, placer, materials, half, height, corridor)
@@ -331,38 +332,39 @@ def build_room(
 
 
 def _room_shell(
-    rng, mesh: MeshBuilder, materials: MaterialIndex, half, height: float, corridor: bool
+    rng, mesh: MeshBuilder, materials: MaterialIndex, lo, hi, height: float, corridor: bool
 ) -> None:
-    """Floor, ceiling, four decorated walls and ceiling lights of the room [-half, half] × [0, height]."""
+    """Floor, ceiling, four decorated walls and ceiling lights of the room [lo, hi] (x, y) × [0, height]."""
     wall = materials.pick(rng, "wall")
     floor, ceiling = materials.pick(rng, "floor"), materials.pick(rng, "ceiling")
-    hx, hy = half
-    mesh.quad((-hx, -hy, 0), (2 * hx, 0, 0), (0, 2 * hy, 0), floor, normal=(0, 0, 1))
-    mesh.quad((-hx, -hy, height), (0, 2 * hy, 0), (2 * hx, 0, 0), ceiling, normal=(0, 0, -1))
+    (x0, y0), (x1, y1) = lo, hi
+    mesh.quad((x0, y0, 0), (x1 - x0, 0, 0), (0, y1 - y0, 0), floor, normal=(0, 0, 1))
+    mesh.quad((x0, y0, height), (0, y1 - y0, 0), (x1 - x0, 0, 0), ceiling, normal=(0, 0, -1))
     # walls, seen from inside: (top-left corner, direction along the wall, inward normal)
     walls = [
-        ((-hx, -hy), (1, 0), (0, 1)),
-        ((hx, -hy), (0, 1), (-1, 0)),
-        ((hx, hy), (-1, 0), (0, -1)),
-        ((-hx, hy), (0, -1), (1, 0)),
+        ((x0, y0), (1, 0), (0, 1)),
+        ((x1, y0), (0, 1), (-1, 0)),
+        ((x1, y1), (-1, 0), (0, -1)),
+        ((x0, y1), (0, -1), (1, 0)),
     ]
     for k, (start, along, inward) in enumerate(walls):
-        length = 2 * (hx if k % 2 == 0 else hy)
+        length = (x1 - x0) if k % 2 == 0 else (y1 - y0)
         start3, along3, in3 = np.array([*start, height]), np.array([*along, 0.0]), np.array([*inward, 0.0])
         mesh.quad(start3, along3 * length, (0, 0, -height), wall, uv_offset=(k * 0.37, 0), normal=in3)
         _decorate_wall(rng, mesh, materials, start3, along3, in3, length, height, corridor)
-    _ceiling_lights(rng, mesh, materials, half, height)
+    _ceiling_lights(rng, mesh, materials, lo, hi, height)
 
 
-def _ceiling_lights(rng, mesh: MeshBuilder, materials: MaterialIndex, half, height) -> None:
-    """Bright light panels in a grid just under the ceiling."""
+def _ceiling_lights(rng, mesh: MeshBuilder, materials: MaterialIndex, lo, hi, height) -> None:
+    """Bright light panels in a grid just under the ceiling of the room [lo, hi]."""
     panel = materials.pick(rng, "pole", tile=(1.0, 1.0))
     panel = replace(panel, tint=(2.2, 2.2, 2.1))
     w, d = (0.6, 0.6) if rng.random() < 0.5 else (1.2, 0.3)
     spacing = rng.uniform(1.8, 3.5)
-    nx, ny = max(1, int(2 * half[0] / spacing)), max(1, int(2 * half[1] / spacing))
-    xs = (np.arange(nx) + 0.5) * 2 * half[0] / nx - half[0]
-    ys = (np.arange(ny) + 0.5) * 2 * half[1] / ny - half[1]
+    extent = np.asarray(hi, dtype=float) - np.asarray(lo, dtype=float)
+    nx, ny = max(1, int(extent[0] / spacing)), max(1, int(extent[1] / spacing))
+    xs = (np.arange(nx) + 0.5) * extent[0] / nx + lo[0]
+    ys = (np.arange(ny) + 0.5) * extent[1] / ny + lo[1]
     for x in xs:
         for y in ys:
             mesh.quad((x - w / 2, y - d / 2, height - 0.01), (0, d, 0), (w, 0, 0), panel, normal=(0, 0, -1))
@@ -497,14 +499,20 @@ def build_desk(
     rig = rig_sample.place(center, yaw)
     for _ in range(20):  # step back until both cameras keep clear of the desk top
         if all(
-            _box_distance(c.center, desk_xy, (*desk, top_z), 0.0, 0.0) > _CLEARANCE and c.center[1] > -half[1]
+            _box_distance(c.center, desk_xy, (*desk, top_z), 0.0, 0.0) > _CLEARANCE
+            and c.center[1] > -half[1] + _CLEARANCE
             for c in (rig.left, rig.right)
         ):
             break
         center = center - 0.05 * np.array([np.cos(yaw), np.sin(yaw), -1.0])
         rig = rig_sample.place(center, yaw)
+    # a camera far to the side, at the back or high up (rare): move those walls or the ceiling out
+    centers = np.array([rig.left.center, rig.right.center])
+    room_lo = np.array([min(-half[0], centers[:, 0].min() - _CLEARANCE - 0.05), -half[1]])
+    room_hi = np.maximum(half, centers[:, :2].max(axis=0) + _CLEARANCE + 0.05)
+    height = max(height, float(centers[:, 2].max()) + _CLEARANCE + 0.05)
     mesh = MeshBuilder()
-    _room_shell(rng, mesh, materials, half, height, corridor=False)
+    _room_shell(rng, mesh, materials, room_lo, room_hi, height, corridor=False)
     placer = _Placer(mesh, rig)
     wood = materials.pick(rng, "object", tile=(rng.uniform(0.4, 1.2),) * 2)
     placer.box(desk_xy, (*desk, 0.04), top_z - 0.04, 0.0, wood, exclusive=False)
