@@ -497,7 +497,7 @@ def build_desk(
     ahead = np.sqrt(max(distance**2 - rise**2, 0.0))
     center = np.array([desk_xy[0] - ahead * np.cos(yaw), desk_xy[1] - ahead * np.sin(yaw), top_z + rise])
     rig = rig_sample.place(center, yaw)
-    for _ in range(20):  # step back until both cameras keep clear of the desk top
+    for _ in range(20):  # step back and up until both cameras keep clear of the desk and its wall
         if all(
             _box_distance(c.center, desk_xy, (*desk, top_z), 0.0, 0.0) > _CLEARANCE
             and c.center[1] > -half[1] + _CLEARANCE
