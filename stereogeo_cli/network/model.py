@@ -215,6 +215,11 @@ def cell_coordinates(x: torch.Tensor, stride: int) -> torch.Tensor:
     return torch.cat([xs, ys], dim=1)
 
 
+def _log_length(v: torch.Tensor) -> torch.Tensor:
+    """log |v| over the last axis, kept [.. x 1], floored at 1e-3 (displacements in half-short-side units)."""
+    return torch.log(v.norm(dim=-1, keepdim=True) + 1e-3)
+
+
 class PoseHead(nn.Module):
     """Relative pose from soft correspondences between the two views plus their global context.
 
@@ -337,12 +342,11 @@ class PoseHead(nn.Module):
         desc_right, _ = self.match_features(fine_right, match_right, reduced_right)
         corr = self.correspondences(desc_left, desc_right, context_left)
         if self.scale_votes:
-            log_shift = torch.log(corr[..., 4:6].norm(dim=-1, keepdim=True) + 1e-3)
-            corr = torch.cat([corr, log_shift], dim=2)
+            corr = torch.cat([corr, _log_length(corr[..., 4:6])], dim=2)
         points = self.point_mlp(corr)  # [B x Nl x P+1(+2)]
-        votes = points[..., -2:] if self.scale_votes else None  # per cell: log depth term, vote logit
-        if self.scale_votes:
-            points = points[..., :-2]
+        votes = None
+        if self.scale_votes:  # per cell: log depth term, vote logit
+            votes, points = points[..., -2:], points[..., :-2]
         attention = torch.softmax(points[..., -1:], dim=1)
         features = points[..., :-1]
         pooled = torch.cat([(attention * features).sum(1), features.amax(1)], dim=1)
@@ -356,7 +360,7 @@ class PoseHead(nn.Module):
         t = out[:, 4:]
         if votes is not None:  # direction from the MLP, length from the votes
             parallax = corr[..., 4:6] - self.infinity(hidden)[:, None, :]
-            log_parallax = torch.log(parallax.norm(dim=-1, keepdim=True) + 1e-3)
+            log_parallax = _log_length(parallax)
             weight = torch.softmax(votes[..., 1:] + self.vote_parallax_gain * log_parallax, dim=1)
             log_length = (weight * (votes[..., :1] + log_parallax)).sum(1)  # [B x 1]
             t = F.normalize(t, dim=1, eps=1e-8) * torch.exp(log_length)
