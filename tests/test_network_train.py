@@ -6,12 +6,19 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 
-from stereogeo_cli.network.data import SizedBatches, cover_crop, training_sample  # noqa: E402
+from stereogeo_cli.network.data import (  # noqa: E402
+    FolderPairs,
+    SizedBatches,
+    TrainingPairs,
+    cover_crop,
+    training_sample,
+)
 from stereogeo_cli.network.losses import ground_truth_fields  # noqa: E402
 
 
@@ -64,8 +71,9 @@ def test_batches_are_split_across_ranks_and_resume_where_they_stopped():
     ia, ib = iter(a), iter(b)
     first = [next(ia) for _ in range(30)]
     other = [next(ib) for _ in range(12)]
-    assert not {i for batch in first[:12] for i, _ in batch} & {i for batch in other for i, _ in batch}
-    assert all(len({s for _, s in batch}) == 1 for batch in first)  # one size per batch
+    assert not {i for batch in first[:12] for i, *_ in batch} & {i for batch in other for i, *_ in batch}
+    assert all(len({s for _, s, _ in batch}) == 1 for batch in first)  # one size per batch
+    assert first[0][0][2] == 0 and first[29][0][2] == 29 // a.per_epoch  # items carry their epoch
     resumed = iter(SizedBatches(100, 4, 3, seed=1, rank=0, world=2, start_batch=17))
     assert [next(resumed) for _ in range(13)] == first[17:]
 
@@ -112,6 +120,38 @@ def test_two_processes_under_torchrun_hold_identical_replicas(tmp_path, tiny_dat
         assert torch.equal(value, b[key]), key
     start = json.loads((tmp_path / "run" / "log.jsonl").read_text().splitlines()[0])
     assert start["world"] == 2
+
+
+def test_grey_share_greys_that_share_of_pairs_both_views_alike_and_reproducibly(tiny_dataset):
+    source = FolderPairs(tiny_dataset)
+    colour = TrainingPairs([source], [(96, 96)])
+    grey = TrainingPairs([source], [(96, 96)], grey_share=0.5, seed=3)
+    every = TrainingPairs([source], [(96, 96)], grey_share=1.0, seed=3)
+
+    def is_grey(sample):
+        return all(bool((sample[v][0] == sample[v][1]).all() and (sample[v][1] == sample[v][2]).all())
+                   for v in ("left", "right"))  # fmt: skip
+
+    items = [(i, 0, epoch) for epoch in range(4) for i in range(len(source))]
+    assert not any(is_grey(colour[item]) for item in items)  # renders are colour
+    assert all(is_grey(every[item]) for item in items)
+    flags = [is_grey(grey[item]) for item in items]
+    assert 0.2 < np.mean(flags) < 0.8
+    assert flags == [is_grey(grey[item]) for item in items]  # reproducible
+    per_epoch = np.reshape(flags, (4, len(source)))
+    assert (per_epoch != per_epoch[0]).any()  # and drawn again each epoch
+    # a grey pair keeps its ground truth and its luma
+    sample, reference = every[(0, 0, 0)], colour[(0, 0, 0)]
+    assert torch.equal(sample["focal"], reference["focal"]) and torch.equal(sample["R"], reference["R"])
+    luma = reference["left"].mul(255).round().permute(1, 2, 0).numpy().astype(np.uint8)
+    expected = cv2.cvtColor(luma, cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
+    np.testing.assert_allclose(sample["left"][0].numpy(), expected, atol=2.5 / 255)
+
+
+def test_grey_share_outside_0_to_1_is_a_clear_error(tmp_path, tiny_dataset):
+    result = _run_train(["--config", str(_config(tmp_path, tiny_dataset)), "--grey-share", "1.5"])
+    assert result.returncode == 2
+    assert "grey_share must be between 0 and 1" in result.stderr and "Traceback" not in result.stderr
 
 
 def test_unknown_data_folder_is_a_clear_error(tmp_path):

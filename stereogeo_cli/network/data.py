@@ -114,21 +114,36 @@ class RenderedPairs:
         return sample.left, sample.right, sample.calib
 
 
-class TrainingPairs(torch.utils.data.Dataset):
-    """Map-style dataset over several sources; items are addressed as (global index, size index)."""
+def to_grey(image: np.ndarray) -> np.ndarray:
+    """An RGB image [H x W x 3] uint8 as a mono camera gives it: luma in all three channels."""
+    return cv2.cvtColor(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), cv2.COLOR_GRAY2RGB)
 
-    def __init__(self, sources: list, sizes=TRAIN_SIZES):
+
+class TrainingPairs(torch.utils.data.Dataset):
+    """Map-style dataset over several sources; items are addressed as (global index, size index[, epoch]).
+
+    With ``grey_share`` > 0 that share of the pairs is shown in grey, both views alike (many stereo rigs
+    are mono); which pairs is drawn from (``seed``, epoch, index), so it is reproducible and changes with
+    the epoch.
+    """
+
+    def __init__(self, sources: list, sizes=TRAIN_SIZES, grey_share: float = 0.0, seed: int = 0):
         self.sources = sources
         self.sizes = tuple(tuple(s) for s in sizes)
         self.offsets = np.cumsum([0] + [len(s) for s in sources])
+        self.grey_share, self.seed = float(grey_share), int(seed)
 
     def __len__(self) -> int:
         return int(self.offsets[-1])
 
-    def __getitem__(self, item: tuple[int, int]) -> dict:
-        index, size_index = item
+    def __getitem__(self, item: tuple[int, ...]) -> dict:
+        index, size_index, *rest = item
         source = int(np.searchsorted(self.offsets, index, side="right") - 1)
         left, right, calib = self.sources[source][index - int(self.offsets[source])]
+        if self.grey_share > 0:
+            epoch = rest[0] if rest else 0
+            if np.random.default_rng([self.seed, epoch, index]).random() < self.grey_share:
+                left, right = to_grey(left), to_grey(right)
         sample = training_sample(left, right, calib, self.sizes[size_index])
         sample["index"] = torch.tensor(index)
         return sample
@@ -136,6 +151,8 @@ class TrainingPairs(torch.utils.data.Dataset):
 
 class SizedBatches(torch.utils.data.Sampler):
     """Batches of one training size each, shuffled per epoch from a seed; split across ranks.
+
+    Items are (index, size index, epoch).
 
     Iteration starts at ``start_batch`` of the stream of epochs, so a resumed run sees exactly the
     batches it would have seen without the interruption.
@@ -149,13 +166,13 @@ class SizedBatches(torch.utils.data.Sampler):
         if self.per_epoch < 1:
             raise ValueError(f"{count} pairs are too few for batches of {batch_size} on {world} processes")
 
-    def epoch_batches(self, epoch: int) -> list[list[tuple[int, int]]]:
+    def epoch_batches(self, epoch: int) -> list[list[tuple[int, int, int]]]:
         rng = np.random.default_rng([self.seed, epoch])
         order = rng.permutation(self.count)[: self.per_epoch * self.batch_size * self.world]
         sizes = rng.integers(self.n_sizes, size=self.per_epoch * self.world)
         batches = order.reshape(-1, self.batch_size)
         mine = range(self.rank, len(batches), self.world)
-        return [[(int(i), int(sizes[b])) for i in batches[b]] for b in mine]
+        return [[(int(i), int(sizes[b]), epoch) for i in batches[b]] for b in mine]
 
     def __iter__(self):
         epoch, skip = divmod(self.start_batch, self.per_epoch)

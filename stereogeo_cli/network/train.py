@@ -38,6 +38,10 @@ SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
     "steps": (6000, "Optimiser steps in all."),
     "batch_size": (8, "Pairs per step and process."),
     "sizes": ([list(s) for s in TRAIN_SIZES], "Training sizes (width, height); one per batch."),
+    "grey_share": (
+        0.0,
+        "Share of training pairs shown in grey, both views alike (as mono cameras give them).",
+    ),
     "input_short_side": (224, "The inference rule written into the exported model (short side, pixels)."),
     "lr": (1e-4, "AdamW learning rate after warm-up."),
     "weight_decay": (1e-4, "AdamW weight decay."),
@@ -277,7 +281,7 @@ def train(conf: dict) -> dict:
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(model)
 
-    dataset = TrainingPairs(_sources(conf), conf["sizes"])
+    dataset = TrainingPairs(_sources(conf), conf["sizes"], conf["grey_share"], conf["seed"])
     sampler = SizedBatches(
         len(dataset), conf["batch_size"], len(dataset.sizes), conf["seed"], rank, world, step
     )
@@ -388,6 +392,8 @@ def parse_args(argv: list[str] | None = None) -> dict:
     unknown = set(conf["loss"]) - set(loss_defaults)
     if unknown:
         raise StereoGeoError(f"unknown loss settings: {sorted(unknown)}")
+    if not 0.0 <= float(conf["grey_share"]) <= 1.0:
+        raise StereoGeoError(f"grey_share must be between 0 and 1, got {conf['grey_share']}")
     return conf
 
 
