@@ -1,21 +1,47 @@
 """How the calibration depends on the size the network sees: the same pairs at several input short sides.
 
     python benchmarks/scale_sensitivity.py DATASET [DATASET ...] [--sizes 160,192,224,256,288] [--model M]
+        [--by-scene]
 
 Every pair of each dataset (the project's layout with ground truth) is calibrated by the full pipeline
 with the network's input short side overridden (the shipped rule is the model's ``input_short_side``).
-Prints one row per dataset and size: median vFoV error, median roll and pitch errors where gravity is
-known, median rotation error. A model that reads the focal length from geometry gives the same vFoV at
-every size; one that reads it from how big things look in pixels does not.
+Prints one row per dataset and size: median vFoV error, its median signed value (the "bias": > 0 reads the
+lens too wide), median roll and pitch errors where gravity is known, median rotation error. A model that
+reads the focal length from geometry gives the same vFoV at every size; one that reads it from how big
+things look in pixels reads narrower lenses on smaller inputs and wider ones on larger inputs.
+
+``--by-scene`` splits a rendered dataset by its records' ``scene`` (room, street, …, and ``panorama`` for
+the crops of real panoramas): the panorama crops are real photographs, the renders are not.
 """
 
 import argparse
 import json
 import sys
+from collections import defaultdict
 from pathlib import Path
 
-from stereogeo_cli.evaluate import evaluate_dataset
+import numpy as np
+
+from stereogeo_cli.evaluate import evaluate_dataset, read_dataset
 from stereogeo_cli.pipeline import Calibrator
+
+
+def _median(rows: list[dict], key: str) -> float | None:
+    values = [r[f"{v}_{key}"] for r in rows for v in ("left", "right") if r.get(f"{v}_{key}") is not None]
+    return float(np.median(values)) if values else None
+
+
+def _groups(folder: Path, rows: list[dict], by_scene: bool) -> dict[str, list[dict]]:
+    if not by_scene:
+        return {folder.name: rows}
+    scene = {}
+    for record in read_dataset(folder):
+        kind = record.get("kind")
+        scene[record["id"]] = "panorama" if kind == "panorama" else record.get("scene") or kind or "?"
+    groups: dict[str, list[dict]] = defaultdict(list)
+    for row in rows:
+        groups[f"{folder.name}/{scene.get(row['id'], '?')}"].append(row)
+    return dict(sorted(groups.items()))
 
 
 def main() -> None:
@@ -24,6 +50,7 @@ def main() -> None:
     parser.add_argument("--sizes", default="160,192,224,256,288", help="input short sides, multiples of 32")
     parser.add_argument("--model", type=Path, default=None)
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--by-scene", action="store_true", help="split rendered datasets by scene kind")
     parser.add_argument("--json", type=Path, help="also write the rows to this JSON file")
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
@@ -31,22 +58,27 @@ def main() -> None:
     calibrator = Calibrator(args.model, threads=args.threads)
     shipped = calibrator.network.short_side
     print(f"model {calibrator.model_path.name}, shipped input short side {shipped}", file=sys.stderr)
-    print("| dataset | short side | vFoV | roll | pitch | R |\n|---|---|---|---|---|---|")
+    print("| dataset | short side | vFoV | vFoV bias | roll | pitch | R |\n|---|---|---|---|---|---|---|")
     for folder in args.datasets:
         for size in sizes:
             calibrator.network.short_side = size
-            metrics = evaluate_dataset(folder, calibrator)["metrics"]
-
-            medians = {k: v.get("median") for k, v in metrics.items() if isinstance(v, dict)}
-            row = {"dataset": folder.name, "short_side": size}
-            row.update({k: medians.get(f"{k}_deg") for k in ("vfov", "roll", "pitch")})
-            row["rotation"] = medians.get("rotation_error_deg")
-            rows.append(row)
-            cells = [
-                f"{row[k]:.2f}°" if row[k] is not None else "–" for k in ("vfov", "roll", "pitch", "rotation")
-            ]
-            mark = " (shipped)" if size == shipped else ""
-            print(f"| {folder.name} | {size}{mark} | " + " | ".join(cells) + " |", flush=True)
+            pairs = evaluate_dataset(folder, calibrator)["pairs"]
+            for name, group in _groups(folder, pairs, args.by_scene).items():
+                row = {"dataset": name, "short_side": size, "pairs": len(group)}
+                for key in ("vfov", "roll", "pitch"):
+                    row[key] = _median(group, f"{key}_error_deg")
+                row["vfov_bias"] = _median(group, "vfov_bias_deg")
+                rotations = [
+                    r["rotation_error_deg"] for r in group if r.get("rotation_error_deg") is not None
+                ]
+                row["rotation"] = float(np.median(rotations)) if rotations else None
+                rows.append(row)
+                cells = [
+                    "–" if row[k] is None else f"{row[k]:+.2f}°" if k == "vfov_bias" else f"{row[k]:.2f}°"
+                    for k in ("vfov", "vfov_bias", "roll", "pitch", "rotation")
+                ]
+                mark = " (shipped)" if size == shipped else ""
+                print(f"| {name} | {size}{mark} | " + " | ".join(cells) + " |", flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
 

@@ -118,6 +118,7 @@ def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False,
             K = np.asarray(cam["K"], dtype=float)
             vfov = math.degrees(float(vfov_from_focal(K[1, 1], cam["height"])))
             row[f"{view}_vfov_error_deg"] = abs(fit.vfov_deg - vfov)
+            row[f"{view}_vfov_bias_deg"] = fit.vfov_deg - vfov  # signed: > 0 reads the lens too wide
             row[f"{view}_vfov_z"] = _z(row[f"{view}_vfov_error_deg"], fit.sigma["vfov_deg"])
             row[f"{view}_focal_error_rel"] = abs(fit.focal_px / (0.5 * (K[0, 0] + K[1, 1])) - 1)
             if cam.get("gravity_up") is not None:
@@ -180,6 +181,9 @@ def _summaries(rows: list[dict], total: int, failed: int = 0) -> dict:
             # the factor that would make them so
             metrics[f"{name}_sigma"] = {"within_1_sigma": float(np.mean(z <= 1)),
                                         "scale_for_68": float(np.percentile(z, 68.27))}  # fmt: skip
+    bias = column("left_vfov_bias_deg") + column("right_vfov_bias_deg")
+    if bias:
+        metrics["vfov_bias_deg"] = {"median": float(np.median(bias)), "mean": float(np.mean(bias))}
     focal = column("left_focal_error_rel") + column("right_focal_error_rel")
     if focal:
         metrics["focal_rel"] = {"median": float(np.median(focal)), "mean": float(np.mean(focal))}

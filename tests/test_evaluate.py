@@ -65,6 +65,12 @@ def test_evaluate_json_reports_the_papers_metrics(dataset, onnx_model):
         assert set(metrics[key]) >= {"median", "mean", "std"}
     assert metrics["pairs"] == {"evaluated": 3, "total": 3}
     assert len(report["pairs"]) == 3 and report["skipped"] == []
+    # the signed vFoV error says which way the lens is misread; its size is the unsigned error
+    for row in report["pairs"]:
+        for view in ("left", "right"):
+            assert abs(row[f"{view}_vfov_bias_deg"]) == pytest.approx(row[f"{view}_vfov_error_deg"])
+    biases = [row[f"{v}_vfov_bias_deg"] for row in report["pairs"] for v in ("left", "right")]
+    assert metrics["vfov_bias_deg"]["median"] == pytest.approx(np.median(biases))
     # a sanity bound for the baseline's conventions (a flipped R or T, or a wrong K, gives tens of degrees);
     # three small renders are too few for an accuracy figure
     assert metrics["sift+essential_rotation_error_deg"]["median"] < 10.0
