@@ -52,7 +52,7 @@ class RelativePose:
     inliers: int = 0
     sigma_rotation_deg: float = float("inf")
     sigma_direction_deg: float = float("inf")
-    gravity_error_deg: float | None = None  # angle between R·g_left and g_right after the fusion
+    gravity_error_deg: float | None = None  # angle between R·g_left and g_right (the fields' gravity)
     focal_scale: tuple[float, float] = (1.0, 1.0)  # refined focal / given focal, per camera
     # radial distortion per camera: the division-model k (undistorted = distorted / (1 + k·r²)) in the
     # normalised coordinates of the refined K, and its 1-sigma (0 and inf: not fitted)

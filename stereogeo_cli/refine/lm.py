@@ -79,6 +79,18 @@ class CameraFit:
         vfov = float(np.degrees(vfov_from_focal(focal, height)))
         return replace(self, width=width, height=height, focal_px=focal, vfov_deg=vfov, sigma=sigma)
 
+    def with_gravity(self, gravity: np.ndarray, covariance: np.ndarray, focal: float) -> CameraFit:
+        """This fit with another gravity, focal and covariance of θ (e.g. after evidence from the other
+        camera); roll, pitch, vFoV and every sigma are recomputed."""
+        g = np.asarray(gravity, dtype=float) / np.linalg.norm(gravity)
+        roll, pitch = roll_pitch_from_gravity(g)
+        return replace(
+            self, gravity_up=g, roll_deg=float(np.degrees(roll)), pitch_deg=float(np.degrees(pitch)),
+            focal_px=float(focal), vfov_deg=float(np.degrees(vfov_from_focal(focal, self.height))),
+            covariance=np.asarray(covariance, dtype=float),
+            sigma=_sigmas(covariance, float(focal), self.height, float(pitch)),
+        )  # fmt: skip
+
     def in_original_pixels(self, rc: ResizeCrop) -> CameraFit:
         """This fit, made on a resized and cropped image (e.g. the network input), in the original's pixels.
 
@@ -106,6 +118,17 @@ class CameraFit:
 def _vfov_sigma_deg(focal: float, height: float, log_focal_sigma: float) -> float:
     """1-sigma of the vFoV in degrees from that of log f: |d vFoV / d log f| = h·f / (f² + h²/4)."""
     return float(np.degrees(height * focal / (focal * focal + height * height / 4.0) * log_focal_sigma))
+
+
+def _sigmas(cov: np.ndarray, focal: float, height: float, pitch: float) -> dict[str, float]:
+    """The 1-sigma figures (pixels and degrees) of a covariance of θ = (δ_pitch, δ_roll·cos(pitch), log f)."""
+    sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    return {
+        "focal_px": float(focal * sig[2]),
+        "vfov_deg": _vfov_sigma_deg(focal, height, sig[2]),
+        "roll_deg": float(np.degrees(sig[1] / max(np.cos(pitch), 1e-9))),
+        "pitch_deg": float(np.degrees(sig[0])),
+    }
 
 
 def huber(s: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
@@ -420,13 +443,7 @@ def refine_camera(
 
     roll, pitch = roll_pitch_from_gravity(g)
     f = float(np.exp(log_f))
-    sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    sigma = {
-        "focal_px": float(f * sig[2]),
-        "vfov_deg": _vfov_sigma_deg(f, height, sig[2]),
-        "roll_deg": float(np.degrees(sig[1] / max(np.cos(pitch), 1e-9))),
-        "pitch_deg": float(np.degrees(sig[0])),
-    }
+    sigma = _sigmas(cov, f, height, float(pitch))
     return CameraFit(
         width=int(width),
         height=int(height),
