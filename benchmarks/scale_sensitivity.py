@@ -1,7 +1,7 @@
 """How the calibration depends on the size the network sees: the same pairs at several input short sides.
 
     python benchmarks/scale_sensitivity.py DATASET [DATASET ...] [--sizes 160,192,224,256,288] [--model M]
-        [--by-scene]
+        [--by-scene] [--fields-only]
 
 Every pair of each dataset (the project's layout with ground truth) is calibrated by the full pipeline
 with the network's input short side overridden (the shipped rule is the model's ``input_short_side``).
@@ -9,6 +9,9 @@ Prints one row per dataset and size: median vFoV error, its median signed value 
 lens too wide), median roll and pitch errors where gravity is known, median rotation error. A model that
 reads the focal length from geometry gives the same vFoV at every size; one that reads it from how big
 things look in pixels reads narrower lenses on smaller inputs and wider ones on larger inputs.
+
+``--fields-only`` calibrates each camera from the network's fields alone (no matches, which refine the
+focal ratio): what the network itself reads.
 
 ``--by-scene`` splits a rendered dataset by its records' ``scene`` (room, street, …, and ``panorama`` for
 the crops of real panoramas): the panorama crops are real photographs, the renders are not.
@@ -22,8 +25,20 @@ from pathlib import Path
 
 import numpy as np
 
-from stereogeo_cli.evaluate import evaluate_dataset, read_dataset
+from stereogeo_cli.evaluate import camera_errors, evaluate_dataset, read_dataset
+from stereogeo_cli.io import load_image
 from stereogeo_cli.pipeline import Calibrator
+
+
+def _fields_only(folder: Path, calibrator: Calibrator) -> list[dict]:
+    rows = []
+    for record in read_dataset(folder):
+        images = [load_image(folder / side / f"{record['id']}.png") for side in ("left", "right")]
+        row = {"id": record["id"]}
+        for view, fit in zip(("left", "right"), calibrator.fields_only(*images), strict=True):
+            row.update(camera_errors(fit, record[view], view))
+        rows.append(row)
+    return rows
 
 
 def _median(rows: list[dict], key: str) -> float | None:
@@ -32,12 +47,13 @@ def _median(rows: list[dict], key: str) -> float | None:
 
 
 def _groups(folder: Path, rows: list[dict], by_scene: bool) -> dict[str, list[dict]]:
-    if not by_scene:
-        return {folder.name: rows}
     scene = {}
-    for record in read_dataset(folder):
+    for record in read_dataset(folder) if by_scene else []:
         kind = record.get("kind")
-        scene[record["id"]] = "panorama" if kind == "panorama" else record.get("scene") or kind or "?"
+        if kind is not None:  # a rendered dataset (real sets have no kind)
+            scene[record["id"]] = "panorama" if kind == "panorama" else record.get("scene") or kind
+    if not scene:
+        return {folder.name: rows}
     groups: dict[str, list[dict]] = defaultdict(list)
     for row in rows:
         groups[f"{folder.name}/{scene.get(row['id'], '?')}"].append(row)
@@ -51,6 +67,7 @@ def main() -> None:
     parser.add_argument("--model", type=Path, default=None)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--by-scene", action="store_true", help="split rendered datasets by scene kind")
+    parser.add_argument("--fields-only", action="store_true", help="the network's fields alone, no matches")
     parser.add_argument("--json", type=Path, help="also write the rows to this JSON file")
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
@@ -62,7 +79,10 @@ def main() -> None:
     for folder in args.datasets:
         for size in sizes:
             calibrator.network.short_side = size
-            pairs = evaluate_dataset(folder, calibrator)["pairs"]
+            if args.fields_only:
+                pairs = _fields_only(folder, calibrator)
+            else:
+                pairs = evaluate_dataset(folder, calibrator)["pairs"]
             for name, group in _groups(folder, pairs, args.by_scene).items():
                 row = {"dataset": name, "short_side": size, "pairs": len(group)}
                 for key in ("vfov", "roll", "pitch"):

@@ -92,6 +92,26 @@ BASELINES = {
 }
 
 
+def camera_errors(fit, cam: dict, view: str) -> dict:
+    """One camera's errors against its ground truth (a ``calib.jsonl`` camera), keys prefixed by ``view``:
+    vFoV error and signed bias (> 0 reads the lens too wide), relative focal error, and roll and pitch
+    errors where gravity is known, each with its error/sigma ratio (``_z``)."""
+    row: dict = {}
+    K = np.asarray(cam["K"], dtype=float)
+    vfov = math.degrees(float(vfov_from_focal(K[1, 1], cam["height"])))
+    row[f"{view}_vfov_error_deg"] = abs(fit.vfov_deg - vfov)
+    row[f"{view}_vfov_bias_deg"] = fit.vfov_deg - vfov
+    row[f"{view}_vfov_z"] = _z(row[f"{view}_vfov_error_deg"], fit.sigma["vfov_deg"])
+    row[f"{view}_focal_error_rel"] = abs(fit.focal_px / (0.5 * (K[0, 0] + K[1, 1])) - 1)
+    if cam.get("gravity_up") is not None:
+        roll, pitch = (math.degrees(float(a)) for a in roll_pitch_from_gravity(np.asarray(cam["gravity_up"])))
+        row[f"{view}_roll_error_deg"] = abs((fit.roll_deg - roll + 180) % 360 - 180)
+        row[f"{view}_pitch_error_deg"] = abs(fit.pitch_deg - pitch)
+        row[f"{view}_roll_z"] = _z(row[f"{view}_roll_error_deg"], fit.sigma["roll_deg"])
+        row[f"{view}_pitch_z"] = _z(row[f"{view}_pitch_error_deg"], fit.sigma["pitch_deg"])
+    return row
+
+
 def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False, progress=None) -> dict:
     """Run ``calibrator`` (a :class:`stereogeo_cli.pipeline.Calibrator`) on every pair of a dataset.
 
@@ -114,21 +134,7 @@ def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False,
             continue
         row: dict = {"id": name}
         for view, fit in (("left", result.left), ("right", result.right)):
-            cam = record[view]
-            K = np.asarray(cam["K"], dtype=float)
-            vfov = math.degrees(float(vfov_from_focal(K[1, 1], cam["height"])))
-            row[f"{view}_vfov_error_deg"] = abs(fit.vfov_deg - vfov)
-            row[f"{view}_vfov_bias_deg"] = fit.vfov_deg - vfov  # signed: > 0 reads the lens too wide
-            row[f"{view}_vfov_z"] = _z(row[f"{view}_vfov_error_deg"], fit.sigma["vfov_deg"])
-            row[f"{view}_focal_error_rel"] = abs(fit.focal_px / (0.5 * (K[0, 0] + K[1, 1])) - 1)
-            if cam.get("gravity_up") is not None:
-                roll, pitch = (
-                    math.degrees(float(a)) for a in roll_pitch_from_gravity(np.asarray(cam["gravity_up"]))
-                )
-                row[f"{view}_roll_error_deg"] = abs((fit.roll_deg - roll + 180) % 360 - 180)
-                row[f"{view}_pitch_error_deg"] = abs(fit.pitch_deg - pitch)
-                row[f"{view}_roll_z"] = _z(row[f"{view}_roll_error_deg"], fit.sigma["roll_deg"])
-                row[f"{view}_pitch_z"] = _z(row[f"{view}_pitch_error_deg"], fit.sigma["pitch_deg"])
+            row.update(camera_errors(fit, record[view], view))
         if record.get("R") is not None:
             c = result.calibration
             row["rotation_error_deg"] = math.degrees(rotation_error(c.R, np.asarray(record["R"])))

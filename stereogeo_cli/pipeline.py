@@ -121,6 +121,12 @@ class Calibrator:
         )  # fmt: skip
         return fit.in_original_pixels(rc)
 
+    def fields_only(self, left: np.ndarray, right: np.ndarray) -> tuple[CameraFit, CameraFit]:
+        """Each camera's fit from its fields alone (network and refiner; no matches, no sharing), in the
+        original images' pixels: what the network itself reads (benchmarks/scale_sensitivity.py)."""
+        net = self.network.predict(left, right, flip=self.conf["flip"])
+        return self._refine_view(net.left, None), self._refine_view(net.right, None)
+
     def calibrate(
         self,
         left: np.ndarray,

@@ -123,3 +123,18 @@ def test_calibrate_gives_gravities_that_agree_with_its_rotation(example_pair, on
         c = result.calibration
         coupling[share] = math.degrees(gravity_angle(c.R @ result.left.gravity_up, result.right.gravity_up))
     assert coupling[True] < 0.3 * coupling[False] + 0.05
+
+
+def test_fields_only_is_what_calibrate_starts_from(example_pair, onnx_model):
+    """Calibrator.fields_only (the network alone) gives the cameras calibrate starts from: without sharing,
+    calibrate keeps their gravity and only rescales their focal lengths by the matches' ratio."""
+    from stereogeo_cli.io import load_image
+    from stereogeo_cli.pipeline import Calibrator
+
+    images = [load_image(path) for path in example_pair]
+    calibrator = Calibrator(onnx_model, conf={"share_gravity": False})
+    result = calibrator.calibrate(*images)
+    for own, calibrated, scale in zip(calibrator.fields_only(*images), (result.left, result.right),
+                                      result.pose.focal_scale, strict=True):  # fmt: skip
+        np.testing.assert_allclose(own.gravity_up, calibrated.gravity_up, atol=1e-12)
+        assert calibrated.focal_px == pytest.approx(own.focal_px * scale, rel=1e-9)
