@@ -1,4 +1,4 @@
-"""Gravity shared by both cameras: each camera's gravity (and focal) updated with the other's, seen through R.
+"""Gravity shared by both cameras: each camera's gravity updated with the other camera's, seen through R.
 
 Both cameras of a rig see the same world-up, so ``g_right = R·g_left``. The refiner gives each camera its
 own estimate with a covariance over θ = (δ_pitch, δ_roll·cos(pitch), log f). Once the fusion knows R (to a
