@@ -31,8 +31,8 @@ default_conf = {
     # lowered the mean errors on renders but raised the median roll error and the real-image vFoV errors
     # (docs/network.md, "Mirror averaging").
     "flip": False,
-    # Each camera's gravity (and, through their correlation, its focal) updated with the other camera's seen
-    # through the fused R (stereogeo_cli/fuse/gravity.py). The correlation of the two cameras' gravity errors
+    # Each camera's gravity averaged with the other camera's seen through the fused R, the focal lengths left
+    # as they are (stereogeo_cli/fuse/gravity.py). The correlation of the two cameras' gravity errors
     # only widens the reported sigmas: the errors' own correlation on the validation renders is 0.67 (pitch)
     # to 0.75 (roll) with stereogeo-m5; 0.85 is the value that keeps 68 % of those errors within 1 sigma
     # after sharing (66.7 % roll, 67.3 % pitch; 0.7 gave 66.0 % and 65.2 %).

@@ -16,16 +16,17 @@ from stereogeo_cli.geometry.gravity import (
 from stereogeo_cli.refine import CameraFit
 
 
-def _fit(gravity, cov2, focal=500.0, focal_sigma_rel=0.05, cross=(0.0, 0.0)):
-    """A CameraFit with this gravity and a covariance of θ = (δ_pitch, δ_roll·cos p, log f)."""
+def _fit(gravity, cov2, cross=(0.0, 0.0)):
+    """A CameraFit (f = 500 px, 5 % sigma) with this gravity and a covariance of θ = (δ_pitch, δ_roll·cos p,
+    log f); ``cross`` is the covariance of log f with the two gravity coordinates."""
     cov = np.zeros((3, 3))
     cov[:2, :2] = cov2
-    cov[2, 2] = focal_sigma_rel**2
+    cov[2, 2] = 0.05**2
     cov[2, :2] = cov[:2, 2] = cross
-    fit = CameraFit(width=640, height=480, focal_px=focal, gravity_up=np.array([0.0, -1.0, 0.0]),
+    fit = CameraFit(width=640, height=480, focal_px=500.0, gravity_up=np.array([0.0, -1.0, 0.0]),
                     roll_deg=0.0, pitch_deg=0.0, vfov_deg=0.0, sigma={}, covariance=cov, cost=0.0,
                     iterations=0, converged=True)  # fmt: skip
-    return fit.with_gravity(gravity, cov, focal)
+    return fit.with_gravity(gravity, cov)
 
 
 def _rig(rng):
@@ -71,9 +72,13 @@ def test_the_surer_camera_weighs_more_and_the_result_stays_between_the_two():
 def test_correlated_cameras_shrink_the_reported_variance_by_one_plus_rho_over_two():
     g = gravity_from_roll_pitch(0.2, -0.3)
     cov = np.diag([4e-4, 9e-4])
+    cross = np.array([2e-4, -1e-4])  # log f's covariance with pitch and roll
     for rho in (0.0, 0.5, 0.7):
-        left, _ = share_gravity(_fit(g, cov), _fit(g, cov), np.eye(3), 0.0, rho)
+        left, _ = share_gravity(_fit(g, cov, cross), _fit(g, cov, cross), np.eye(3), 0.0, rho)
         np.testing.assert_allclose(left.covariance[:2, :2], cov * (1 + rho) / 2, rtol=1e-9, atol=1e-12)
+        # the focal's own variance stays; its covariance with the averaged gravity shrinks alike
+        assert left.covariance[2, 2] == 0.05**2
+        np.testing.assert_allclose(left.covariance[2, :2], cross * (1 + rho) / 2, rtol=1e-9)
 
 
 def test_shared_gravity_is_what_monte_carlo_says_with_anisotropic_errors_and_an_uncertain_r():

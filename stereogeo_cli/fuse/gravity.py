@@ -50,7 +50,7 @@ def _update(fit: CameraFit, seen: np.ndarray, seen_cov: np.ndarray, seen_basis: 
     shared = keep @ own @ keep.T + gain @ measured @ gain.T + keep @ cross @ gain.T + gain @ cross @ keep.T
     new_cov[:2, :2] = 0.5 * (shared + shared.T)
     new_cov[2, :2] = new_cov[:2, 2] = cov[2, :2] @ (keep + correlation * gain).T
-    return fit.with_gravity(retract_on_sphere(g, step, B), new_cov, fit.focal_px)
+    return fit.with_gravity(retract_on_sphere(g, step, B), new_cov)
 
 
 def share_gravity(

@@ -120,7 +120,7 @@ def to_grey(image: np.ndarray) -> np.ndarray:
 
 
 class TrainingPairs(torch.utils.data.Dataset):
-    """Map-style dataset over several sources; items are addressed as (global index, size index[, epoch]).
+    """Map-style dataset over several sources; items are addressed as (global index, size index, epoch).
 
     With ``grey_share`` > 0 that share of the pairs is shown in grey, both views alike (many stereo rigs
     are mono); which pairs is drawn from (``seed``, epoch, index), so it is reproducible and changes with
@@ -136,14 +136,15 @@ class TrainingPairs(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return int(self.offsets[-1])
 
-    def __getitem__(self, item: tuple[int, ...]) -> dict:
-        index, size_index, *rest = item
+    def __getitem__(self, item: tuple[int, int, int]) -> dict:
+        index, size_index, epoch = item
         source = int(np.searchsorted(self.offsets, index, side="right") - 1)
         left, right, calib = self.sources[source][index - int(self.offsets[source])]
-        if self.grey_share > 0:
-            epoch = rest[0] if rest else 0
-            if np.random.default_rng([self.seed, epoch, index]).random() < self.grey_share:
-                left, right = to_grey(left), to_grey(right)
+        if (
+            self.grey_share > 0
+            and np.random.default_rng([self.seed, epoch, index]).random() < self.grey_share
+        ):
+            left, right = to_grey(left), to_grey(right)
         sample = training_sample(left, right, calib, self.sizes[size_index])
         sample["index"] = torch.tensor(index)
         return sample

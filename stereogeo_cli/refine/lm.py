@@ -79,16 +79,15 @@ class CameraFit:
         vfov = float(np.degrees(vfov_from_focal(focal, height)))
         return replace(self, width=width, height=height, focal_px=focal, vfov_deg=vfov, sigma=sigma)
 
-    def with_gravity(self, gravity: np.ndarray, covariance: np.ndarray, focal: float) -> CameraFit:
-        """This fit with another gravity, focal and covariance of θ (e.g. after evidence from the other
-        camera); roll, pitch, vFoV and every sigma are recomputed."""
+    def with_gravity(self, gravity: np.ndarray, covariance: np.ndarray) -> CameraFit:
+        """This fit with another gravity and covariance of θ (e.g. after evidence from the other camera), the
+        focal kept; roll, pitch and every sigma are recomputed."""
         g = np.asarray(gravity, dtype=float) / np.linalg.norm(gravity)
         roll, pitch = roll_pitch_from_gravity(g)
         return replace(
             self, gravity_up=g, roll_deg=float(np.degrees(roll)), pitch_deg=float(np.degrees(pitch)),
-            focal_px=float(focal), vfov_deg=float(np.degrees(vfov_from_focal(focal, self.height))),
             covariance=np.asarray(covariance, dtype=float),
-            sigma=_sigmas(covariance, float(focal), self.height, float(pitch)),
+            sigma=_sigmas(covariance, self.focal_px, self.height, float(pitch)),
         )  # fmt: skip
 
     def in_original_pixels(self, rc: ResizeCrop) -> CameraFit:
