@@ -1,7 +1,7 @@
 """How the calibration depends on the size the network sees: the same pairs at several input short sides.
 
     python benchmarks/scale_sensitivity.py DATASET [DATASET ...] [--sizes 160,192,224,256,288] [--model M]
-        [--by-scene] [--fields-only]
+        [--by-scene] [--fields-only] [--blur 0,1,2]
 
 Every pair of each dataset (the project's layout with ground truth) is calibrated by the full pipeline
 with the network's input short side overridden (the shipped rule is the model's ``input_short_side``).
@@ -13,6 +13,11 @@ things look in pixels reads narrower lenses on smaller inputs and wider ones on 
 ``--fields-only`` calibrates each camera from the network's fields alone (no matches, which refine the
 focal ratio): what the network itself reads.
 
+``--blur`` adds a sharpness axis: every image is blurred (Gaussian, sigma in pixels of the network
+input) before calibration. A model that reads the focal length from geometry does not care; one that has
+learned "blurry means a long lens" (renders and panorama crops are blurrier the narrower the view) reads
+narrower lenses from blurrier images.
+
 ``--by-scene`` splits a rendered dataset by its records' ``scene`` (room, street, …, and ``panorama`` for
 the crops of real panoramas): the panorama crops are real photographs, the renders are not.
 """
@@ -23,6 +28,7 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from stereogeo_cli.evaluate import camera_errors, evaluate_dataset, read_dataset
@@ -30,7 +36,26 @@ from stereogeo_cli.io import load_image
 from stereogeo_cli.pipeline import Calibrator
 
 
-def _fields_only(folder: Path, calibrator: Calibrator) -> list[dict]:
+class _Blurred:
+    """A calibrator that blurs both images first, by ``sigma`` pixels of the network input."""
+
+    def __init__(self, calibrator: Calibrator, sigma: float):
+        self.calibrator, self.sigma = calibrator, sigma
+
+    def _blur(self, image: np.ndarray) -> np.ndarray:
+        if self.sigma <= 0:
+            return image
+        in_pixels = min(image.shape[:2]) / self.calibrator.network.short_side  # original px per input px
+        return cv2.GaussianBlur(image, (0, 0), self.sigma * in_pixels)
+
+    def calibrate(self, left: np.ndarray, right: np.ndarray, **kwargs):
+        return self.calibrator.calibrate(self._blur(left), self._blur(right), **kwargs)
+
+    def fields_only(self, left: np.ndarray, right: np.ndarray):
+        return self.calibrator.fields_only(self._blur(left), self._blur(right))
+
+
+def _fields_only(folder: Path, calibrator: Calibrator | _Blurred) -> list[dict]:
     rows = []
     for record in read_dataset(folder):
         images = [load_image(folder / side / f"{record['id']}.png") for side in ("left", "right")]
@@ -68,23 +93,27 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--by-scene", action="store_true", help="split rendered datasets by scene kind")
     parser.add_argument("--fields-only", action="store_true", help="the network's fields alone, no matches")
+    parser.add_argument("--blur", default="0", help="Gaussian blurs, sigma in network-input pixels")
     parser.add_argument("--json", type=Path, help="also write the rows to this JSON file")
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
+    blurs = [float(b) for b in args.blur.split(",")]
     rows = []
     calibrator = Calibrator(args.model, threads=args.threads)
     shipped = calibrator.network.short_side
     print(f"model {calibrator.model_path.name}, shipped input short side {shipped}", file=sys.stderr)
-    print("| dataset | short side | vFoV | vFoV bias | roll | pitch | R |\n|---|---|---|---|---|---|---|")
+    print("| dataset | short side | blur | vFoV | vFoV bias | roll | pitch | R |")
+    print("|---|---|---|---|---|---|---|---|")
     for folder in args.datasets:
-        for size in sizes:
+        for size, blur in ((size, blur) for size in sizes for blur in blurs):
             calibrator.network.short_side = size
+            blurred = _Blurred(calibrator, blur)
             if args.fields_only:
-                pairs = _fields_only(folder, calibrator)
+                pairs = _fields_only(folder, blurred)
             else:
-                pairs = evaluate_dataset(folder, calibrator)["pairs"]
+                pairs = evaluate_dataset(folder, blurred)["pairs"]
             for name, group in _groups(folder, pairs, args.by_scene).items():
-                row = {"dataset": name, "short_side": size, "pairs": len(group)}
+                row = {"dataset": name, "short_side": size, "blur": blur, "pairs": len(group)}
                 for key in ("vfov", "roll", "pitch"):
                     row[key] = _median(group, f"{key}_error_deg")
                 row["vfov_bias"] = _median(group, "vfov_bias_deg")
@@ -98,7 +127,7 @@ def main() -> None:
                     for k in ("vfov", "vfov_bias", "roll", "pitch", "rotation")
                 ]
                 mark = " (shipped)" if size == shipped else ""
-                print(f"| {name} | {size}{mark} | " + " | ".join(cells) + " |", flush=True)
+                print(f"| {name} | {size}{mark} | {blur:g} | " + " | ".join(cells) + " |", flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
 

@@ -148,6 +148,45 @@ def test_grey_share_greys_that_share_of_pairs_both_views_alike_and_reproducibly(
     np.testing.assert_allclose(sample["left"][0].numpy(), expected, atol=2.5 / 255)
 
 
+def _detail(image: torch.Tensor) -> float:
+    """Mean absolute difference of vertically adjacent pixels: falls with blur, rises with sharpening."""
+    return float((image[:, 1:] - image[:, :-1]).abs().mean())
+
+
+def test_sharpness_share_blurs_or_sharpens_that_share_of_pairs_both_views_alike(tiny_dataset):
+    source = FolderPairs(tiny_dataset)
+    plain = TrainingPairs([source], [(96, 96)])
+    changed = TrainingPairs([source], [(96, 96)], seed=3, sharpness_share=0.6)
+    items = [(i, 0, epoch) for epoch in range(6) for i in range(len(source))]
+    ratios = []
+    for item in items:
+        sample, reference = changed[item], plain[item]
+        for key in ("focal", "gravity", "R", "T"):
+            assert torch.equal(sample[key], reference[key]), key  # the ground truth is the cut's
+        ratios.append([_detail(sample[v]) / _detail(reference[v]) for v in ("left", "right")])
+        assert sample["left"].min() >= 0 and sample["left"].max() <= 1
+    ratios = np.array(ratios)
+    blurred, sharpened = (ratios < 0.95).all(axis=1), (ratios > 1.05).all(axis=1)
+    untouched = np.isclose(ratios, 1.0).all(axis=1)
+    # every pair is either left alone or changed the same way in both views
+    assert (blurred | sharpened | untouched).all()
+    assert 0.3 < np.mean(~untouched) < 0.9 and blurred.any() and sharpened.any()
+    again = [changed[item] for item in items[:8]]
+    assert all(
+        torch.equal(a["left"], changed[item]["left"]) for a, item in zip(again, items[:8], strict=True)
+    )
+    per_epoch = untouched.reshape(6, len(source))
+    assert (per_epoch != per_epoch[0]).any()  # drawn again each epoch
+    # off by default: the renders as they are
+    assert torch.equal(TrainingPairs([source], [(96, 96)], seed=3)[items[0]]["left"], plain[items[0]]["left"])
+
+
+def test_sharpness_share_outside_0_to_1_is_a_clear_error(tmp_path, tiny_dataset):
+    result = _run_train(["--config", str(_config(tmp_path, tiny_dataset)), "--sharpness-share", "-0.1"])
+    assert result.returncode == 2
+    assert "sharpness_share must be between 0 and 1" in result.stderr and "Traceback" not in result.stderr
+
+
 def test_grey_share_outside_0_to_1_is_a_clear_error(tmp_path, tiny_dataset):
     result = _run_train(["--config", str(_config(tmp_path, tiny_dataset)), "--grey-share", "1.5"])
     assert result.returncode == 2

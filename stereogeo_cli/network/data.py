@@ -114,6 +114,15 @@ class RenderedPairs:
         return sample.left, sample.right, sample.calib
 
 
+def change_sharpness(image: torch.Tensor, sigma: float, amount: float) -> torch.Tensor:
+    """A [3 x H x W] image in [0, 1] blurred (``amount`` < 0 ... -1: a blend towards a Gaussian blur of
+    ``sigma`` px) or sharpened (``amount`` > 0: an unsharp mask of that strength)."""
+    hwc = np.ascontiguousarray(image.permute(1, 2, 0).numpy())
+    blurred = cv2.GaussianBlur(hwc, (0, 0), sigma)
+    out = hwc + (blurred - hwc) * -amount if amount < 0 else hwc + (hwc - blurred) * amount
+    return torch.from_numpy(np.clip(out, 0.0, 1.0).transpose(2, 0, 1).copy())
+
+
 def to_grey(image: np.ndarray) -> np.ndarray:
     """An RGB image [H x W x 3] uint8 as a mono camera gives it: luma in all three channels."""
     return cv2.cvtColor(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), cv2.COLOR_GRAY2RGB)
@@ -123,15 +132,19 @@ class TrainingPairs(torch.utils.data.Dataset):
     """Map-style dataset over several sources; items are addressed as (global index, size index, epoch).
 
     With ``grey_share`` > 0 that share of the pairs is shown in grey, both views alike (many stereo rigs
-    are mono); which pairs is drawn from (``seed``, epoch, index), so it is reproducible and changes with
-    the epoch.
+    are mono). With ``sharpness_share`` > 0 that share is blurred or sharpened after the cut, both views
+    alike, half each way (blur of 0.5–2 px, unsharp mask of strength 0.3–1.5), so that how sharp an image
+    looks stops telling its field of view (see docs/network.md, "Sharpness"). Which pairs is drawn from
+    (``seed``, epoch, index), so it is reproducible and changes with the epoch.
     """
 
-    def __init__(self, sources: list, sizes=TRAIN_SIZES, grey_share: float = 0.0, seed: int = 0):
+    def __init__(self, sources: list, sizes=TRAIN_SIZES, grey_share: float = 0.0, seed: int = 0,
+                 sharpness_share: float = 0.0):  # fmt: skip
         self.sources = sources
         self.sizes = tuple(tuple(s) for s in sizes)
         self.offsets = np.cumsum([0] + [len(s) for s in sources])
         self.grey_share, self.seed = float(grey_share), int(seed)
+        self.sharpness_share = float(sharpness_share)
 
     def __len__(self) -> int:
         return int(self.offsets[-1])
@@ -146,6 +159,15 @@ class TrainingPairs(torch.utils.data.Dataset):
         ):
             left, right = to_grey(left), to_grey(right)
         sample = training_sample(left, right, calib, self.sizes[size_index])
+        if self.sharpness_share > 0:
+            rng = np.random.default_rng([self.seed, epoch, index, 1])  # apart from the grey draw
+            if rng.random() < self.sharpness_share:
+                if rng.random() < 0.5:
+                    sigma, amount = rng.uniform(0.5, 2.0), -rng.uniform(0.5, 1.0)
+                else:
+                    sigma, amount = 1.0, rng.uniform(0.3, 1.5)
+                for view in ("left", "right"):
+                    sample[view] = change_sharpness(sample[view], sigma, amount)
         sample["index"] = torch.tensor(index)
         return sample
 

@@ -42,6 +42,11 @@ SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
         0.0,
         "Share of training pairs shown in grey, both views alike (as mono cameras give them).",
     ),
+    "sharpness_share": (
+        0.0,
+        "Share of training pairs blurred or sharpened after the cut, both views alike, so sharpness does "
+        "not tell the field of view.",
+    ),
     "input_short_side": (224, "The inference rule written into the exported model (short side, pixels)."),
     "lr": (1e-4, "AdamW learning rate after warm-up."),
     "weight_decay": (1e-4, "AdamW weight decay."),
@@ -281,7 +286,9 @@ def train(conf: dict) -> dict:
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(model)
 
-    dataset = TrainingPairs(_sources(conf), conf["sizes"], conf["grey_share"], conf["seed"])
+    dataset = TrainingPairs(
+        _sources(conf), conf["sizes"], conf["grey_share"], conf["seed"], conf["sharpness_share"]
+    )
     sampler = SizedBatches(
         len(dataset), conf["batch_size"], len(dataset.sizes), conf["seed"], rank, world, step
     )
@@ -392,8 +399,9 @@ def parse_args(argv: list[str] | None = None) -> dict:
     unknown = set(conf["loss"]) - set(loss_defaults)
     if unknown:
         raise StereoGeoError(f"unknown loss settings: {sorted(unknown)}")
-    if not 0.0 <= float(conf["grey_share"]) <= 1.0:
-        raise StereoGeoError(f"grey_share must be between 0 and 1, got {conf['grey_share']}")
+    for share in ("grey_share", "sharpness_share"):
+        if not 0.0 <= float(conf[share]) <= 1.0:
+            raise StereoGeoError(f"{share} must be between 0 and 1, got {conf[share]}")
     return conf
 
 
