@@ -70,6 +70,10 @@ def make_data(
     panorama_share: Annotated[
         float, typer.Option(help="Share of pairs that are two crops of one panorama (needs --panoramas).")
     ] = 0.2,
+    panorama_max_upsampling: Annotated[
+        float,
+        typer.Option(help="Crops of a panorama magnify it at most this much (narrower crops are widened)."),
+    ] = 1.5,
     augment: Annotated[
         float, typer.Option(help="Strength of noise, blur and exposure changes (0: none).")
     ] = 1.0,
@@ -108,6 +112,7 @@ def make_data(
             outdoor_share=outdoor_share,
             close_share=close_share,
             panorama_share=panorama_share,
+            panorama_max_upsampling=panorama_max_upsampling,
             augment=augment,
             depth=depth,
             textures=textures,

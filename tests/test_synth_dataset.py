@@ -71,19 +71,42 @@ def test_resume_refuses_other_settings(tmp_path):
         make_dataset(tmp_path, 2, seed=2, config=CONFIG, progress=False)
 
 
-def test_folders_made_before_close_range_scenes_resume_with_close_share_zero(tmp_path):
+def test_folders_made_before_close_range_scenes_and_narrow_crops_resume_as_they_were_made(tmp_path):
     from stereogeo_cli.errors import StereoGeoError
 
-    old = CONFIG.replace(close_share=0.0)
+    old = CONFIG.replace(close_share=0.0, panorama_max_upsampling=1.5)
     make_dataset(tmp_path, 1, seed=1, config=old, progress=False)
     settings = tmp_path / "make-data.json"
     text = json.loads(settings.read_text())
-    del text["config"]["close_share"]  # as written before the setting existed
+    del text["config"]["close_share"], text["config"]["panorama_max_upsampling"]  # older writers' settings
     settings.write_text(json.dumps(text))
     make_dataset(tmp_path, 2, seed=1, config=old, progress=False)
     assert len((tmp_path / "calib.jsonl").read_text().splitlines()) == 2
     with pytest.raises(StereoGeoError, match="other settings"):
         make_dataset(tmp_path, 3, seed=1, config=CONFIG.replace(close_share=0.5), progress=False)
+    with pytest.raises(StereoGeoError, match="other settings"):
+        make_dataset(tmp_path, 3, seed=1, config=old.replace(panorama_max_upsampling=3.0), progress=False)
+
+
+@pytest.mark.parametrize("max_upsampling", [1.5, 3.5])
+def test_panorama_crops_magnify_their_panorama_at_most_panorama_max_upsampling(max_upsampling):
+    from stereogeo_cli.synth.rigs import sample_rig
+    from stereogeo_cli.synth.sample import _panorama_rig
+
+    cfg = CONFIG.replace(vfov_deg=(18.0, 105.0), panorama_max_upsampling=max_upsampling)
+    rng = np.random.default_rng(5)
+    vfovs, floors = [], []
+    for _ in range(400):
+        crop = _panorama_rig(sample_rig(rng, cfg), cfg, panorama_width=1024)
+        # crop pixels per degree at the centre, against the panorama's 1024 / 360
+        for vfov in (crop.vfov_left, crop.vfov_right):
+            magnification = crop.height / (2 * np.tan(vfov / 2)) * np.radians(1.0) / (1024 / 360)
+            assert magnification <= max_upsampling * 1.0001
+            vfovs.append(np.degrees(vfov))
+        floors.append(crop.height * 360 / (max_upsampling * 1024))
+        assert not crop.offset.any()  # crops of one panorama: a pure rotation
+    assert np.min(vfovs) < np.max(floors) + 3  # the floor is reached: narrow crops are widened, not dropped
+    assert np.max(vfovs) > 90
 
 
 def test_cli_writes_dataset_and_preview(tmp_path):
@@ -103,6 +126,7 @@ def test_cli_writes_dataset_and_preview(tmp_path):
         ["--aspects", "4:x"],
         ["--vfov-min", "120", "--vfov-max", "30"],
         ["--close-share", "1.5"],
+        ["--panorama-max-upsampling", "0.5"],
         ["--textures", "/nonexistent/folder"],
         [],  # neither an output folder nor --preview
     ],

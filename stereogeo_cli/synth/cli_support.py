@@ -37,6 +37,7 @@ def build_config(
     outdoor_share,
     close_share,
     panorama_share,
+    panorama_max_upsampling=1.5,
     augment,
     depth,
     textures,
@@ -52,6 +53,7 @@ def build_config(
             "shares must be within 0–1",
         ),
         (augment >= 0, "--augment must be ≥ 0"),
+        (panorama_max_upsampling >= 1, "--panorama-max-upsampling must be ≥ 1"),
     ]
     for ok, message in checks:
         if not ok:
@@ -69,6 +71,7 @@ def build_config(
         outdoor_share=outdoor_share,
         close_share=close_share,
         panorama_share=panorama_share,
+        panorama_max_upsampling=panorama_max_upsampling,
         augment=augment,
         depth=depth,
         textures=Path(textures).resolve() if textures else None,

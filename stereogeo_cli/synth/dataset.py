@@ -66,7 +66,8 @@ def write_sample(folder: Path, sample: StereoSample) -> str:
     return json.dumps(sample.calib, separators=(", ", ": "))
 
 
-_ADDED_SETTINGS = {"close_share": 0.0}  # before desks existed, no scene was one
+# settings added later, at the values that render what older folders hold (no desks; crops ≤ 1.5× magnified)
+_ADDED_SETTINGS = {"close_share": 0.0, "panorama_max_upsampling": 1.5}
 
 
 def _settings(seed: int, config: SynthConfig) -> dict:

@@ -151,8 +151,9 @@ def _calib(index: int, seed: int, rig: Rig, kind: str, scene: str, vfovs: tuple[
 
 
 def _panorama_rig(rs: RigSample, cfg: SynthConfig, panorama_width: int) -> RigSample:
-    """Crops: no translation, and no narrower vFoV than the panorama resolves (≤ 1.5× upsampling)."""
-    low = np.radians(min(cfg.vfov_deg[1], rs.height * 360.0 / (1.5 * panorama_width)))
+    """Crops: no translation, and no narrower vFoV than ``cfg.panorama_max_upsampling`` allows (the crop's
+    pixels at most that many times smaller than the panorama's)."""
+    low = np.radians(min(cfg.vfov_deg[1], rs.height * 360.0 / (cfg.panorama_max_upsampling * panorama_width)))
     lo_cfg, hi = np.radians(cfg.vfov_deg[0]), np.radians(cfg.vfov_deg[1])
 
     def remap(v: float) -> float:
