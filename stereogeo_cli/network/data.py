@@ -134,8 +134,8 @@ class TrainingPairs(torch.utils.data.Dataset):
     With ``grey_share`` > 0 that share of the pairs is shown in grey, both views alike (many stereo rigs
     are mono). With ``sharpness_share`` > 0 that share is blurred or sharpened after the cut, both views
     alike, half each way (blur of 0.5–2 px, unsharp mask of strength 0.3–1.5), so that how sharp an image
-    looks stops telling its field of view (see docs/network.md, "Sharpness"). Which pairs is drawn from
-    (``seed``, epoch, index), so it is reproducible and changes with the epoch.
+    looks stops telling its field of view (docs/network.md, "Sharpness and narrow real photographs").
+    Which pairs is drawn from (``seed``, epoch, index), so it is reproducible and changes with the epoch.
     """
 
     def __init__(self, sources: list, sizes=TRAIN_SIZES, grey_share: float = 0.0, seed: int = 0,
