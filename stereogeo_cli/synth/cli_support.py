@@ -37,7 +37,7 @@ def build_config(
     outdoor_share,
     close_share,
     panorama_share,
-    panorama_max_upsampling=1.5,
+    panorama_max_upsampling,
     augment,
     depth,
     textures,
