@@ -1,7 +1,7 @@
 """How the calibration depends on the size the network sees: the same pairs at several input short sides.
 
     python benchmarks/scale_sensitivity.py DATASET [DATASET ...] [--sizes 160,192,224,256,288] [--model M]
-        [--by-scene] [--fields-only] [--blur 0,1,2]
+        [--by-scene] [--fields-only] [--blur 0,1,2] [--zoom 1,0.7,0.5]
 
 Every pair of each dataset (the project's layout with ground truth) is calibrated by the full pipeline
 with the network's input short side overridden (the shipped rule is the model's ``input_short_side``).
@@ -18,6 +18,12 @@ input) before calibration. A model that reads the focal length from geometry doe
 learned "blurry means a long lens" (renders and panorama crops are blurrier the narrower the view) reads
 narrower lenses from blurrier images.
 
+``--zoom`` adds a field-of-view axis on the same content: each image is cut to its central ``zoom`` of
+width and height (no resampling; the ground truth's principal point moves with the cut, the focal length
+and gravity stay), so every real set also gives views of known, narrower fields of view. A model that reads
+the focal length from geometry reads the cut views' narrower lenses; one that falls back on a prior reads
+every cut much like the whole image.
+
 ``--by-scene`` splits a rendered dataset by its records' ``scene`` (room, street, …, and ``panorama`` for
 the crops of real panoramas): the panorama crops are real photographs, the renders are not.
 """
@@ -25,6 +31,7 @@ the crops of real panoramas): the panorama crops are real photographs, the rende
 import argparse
 import json
 import sys
+import tempfile
 from collections import defaultdict
 from pathlib import Path
 
@@ -53,6 +60,30 @@ class _Blurred:
 
     def fields_only(self, left: np.ndarray, right: np.ndarray):
         return self.calibrator.fields_only(self._blur(left), self._blur(right))
+
+
+def _zoomed(folder: Path, zoom: float, into: Path) -> Path:
+    """A copy of a dataset with every image cut to its central ``zoom`` (width and height), ground truth
+    moved along: the principal point shifts by the cut's corner; focal length, gravity and pose stay."""
+    if zoom == 1:
+        return folder
+    out = into / f"{folder.name}@zoom{zoom:g}"
+    records = []
+    for record in read_dataset(folder):
+        for side in ("left", "right"):
+            (out / side).mkdir(parents=True, exist_ok=True)
+            image = cv2.imread(str(folder / side / f"{record['id']}.png"), cv2.IMREAD_UNCHANGED)
+            height, width = image.shape[:2]
+            cut_w, cut_h = round(width * zoom), round(height * zoom)
+            x0, y0 = (width - cut_w) // 2, (height - cut_h) // 2
+            cv2.imwrite(str(out / side / f"{record['id']}.png"), image[y0 : y0 + cut_h, x0 : x0 + cut_w])
+            K = np.asarray(record[side]["K"], dtype=float)
+            K[0, 2] -= x0
+            K[1, 2] -= y0
+            record[side] = {**record[side], "K": K.tolist(), "width": cut_w, "height": cut_h}
+        records.append(json.dumps(record))
+    (out / "calib.jsonl").write_text("\n".join(records) + "\n")
+    return out
 
 
 def _fields_only(folder: Path, calibrator: Calibrator | _Blurred) -> list[dict]:
@@ -94,26 +125,33 @@ def main() -> None:
     parser.add_argument("--by-scene", action="store_true", help="split rendered datasets by scene kind")
     parser.add_argument("--fields-only", action="store_true", help="the network's fields alone, no matches")
     parser.add_argument("--blur", default="0", help="Gaussian blurs, sigma in network-input pixels")
+    parser.add_argument("--zoom", default="1", help="central cuts, share of width and height (0 < z <= 1)")
     parser.add_argument("--json", type=Path, help="also write the rows to this JSON file")
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
     blurs = [float(b) for b in args.blur.split(",")]
+    zooms = [float(z) for z in args.zoom.split(",")]
+    if not all(0 < z <= 1 for z in zooms):
+        parser.error("--zoom takes shares of the image in (0, 1]")
     rows = []
     calibrator = Calibrator(args.model, threads=args.threads)
     shipped = calibrator.network.short_side
     print(f"model {calibrator.model_path.name}, shipped input short side {shipped}", file=sys.stderr)
-    print("| dataset | short side | blur | vFoV | vFoV bias | roll | pitch | R |")
-    print("|---|---|---|---|---|---|---|---|")
-    for folder in args.datasets:
+    print("| dataset | zoom | short side | blur | vFoV | vFoV bias | roll | pitch | R |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    scratch = tempfile.TemporaryDirectory(prefix="stereogeo-zoom-")
+    for folder, zoom in ((folder, zoom) for folder in args.datasets for zoom in zooms):
+        cut = _zoomed(folder, zoom, Path(scratch.name))
         for size, blur in ((size, blur) for size in sizes for blur in blurs):
             calibrator.network.short_side = size
             blurred = _Blurred(calibrator, blur)
             if args.fields_only:
-                pairs = _fields_only(folder, blurred)
+                pairs = _fields_only(cut, blurred)
             else:
-                pairs = evaluate_dataset(folder, blurred)["pairs"]
-            for name, group in _groups(folder, pairs, args.by_scene).items():
-                row = {"dataset": name, "short_side": size, "blur": blur, "pairs": len(group)}
+                pairs = evaluate_dataset(cut, blurred)["pairs"]
+            for name, group in _groups(cut, pairs, args.by_scene).items():
+                name = name.replace(cut.name, folder.name, 1)
+                row = {"dataset": name, "zoom": zoom, "short_side": size, "blur": blur, "pairs": len(group)}
                 for key in ("vfov", "roll", "pitch"):
                     row[key] = _median(group, f"{key}_error_deg")
                 row["vfov_bias"] = _median(group, "vfov_bias_deg")
@@ -127,7 +165,9 @@ def main() -> None:
                     for k in ("vfov", "vfov_bias", "roll", "pitch", "rotation")
                 ]
                 mark = " (shipped)" if size == shipped else ""
-                print(f"| {name} | {size}{mark} | {blur:g} | " + " | ".join(cells) + " |", flush=True)
+                print(
+                    f"| {name} | {zoom:g} | {size}{mark} | {blur:g} | " + " | ".join(cells) + " |", flush=True
+                )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
 

@@ -15,11 +15,19 @@ import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.fuse import Matches, RelativePose, fuse_relative_pose, match_features, share_gravity
-from stereogeo_cli.geometry import corner_radius, intrinsic_matrix, opencv_from_division, rotation_angle
+from stereogeo_cli.geometry import (
+    corner_radius,
+    intrinsic_matrix,
+    opencv_from_division,
+    rotation_angle,
+    undistort_division,
+)
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.images import check_pair
 from stereogeo_cli.network.runtime import FieldNetwork, ViewFields
 from stereogeo_cli.refine import CameraFit, parse_sigma_inflation, refine_camera
+from stereogeo_cli.refine.lines import default_conf as lines_conf
+from stereogeo_cli.refine.lines import detect_segments, gravity_with_lines
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 DEFAULT_MODEL = MODELS_DIR / "stereogeo.onnx"
@@ -38,6 +46,8 @@ default_conf = {
     # after sharing (66.7 % roll, 67.3 % pitch; 0.7 gave 66.0 % and 65.2 %).
     "share_gravity": True,
     "gravity_view_correlation": 0.85,
+    # vertical line segments set the gravity together with the fields (stereogeo_cli/refine/lines.py)
+    "lines": {},  # overrides of stereogeo_cli.refine.lines.default_conf ({"enabled": False}: fields alone)
     "match": {},  # overrides of stereogeo_cli.fuse.matches.default_conf
     "fuse": {},  # overrides of stereogeo_cli.fuse.pose.default_conf
     "refine": {},  # overrides of stereogeo_cli.refine.default_conf
@@ -102,6 +112,7 @@ class Calibrator:
             "prior_rotation_sigma_deg": self.network.metadata.get("pose_sigma_rotation_deg"),
             "prior_direction_sigma_deg": self.network.metadata.get("pose_sigma_direction_deg"),
         }
+        self.conf["lines"] = {**lines_conf, **self.conf["lines"]}
         self.conf["fuse"] = {
             **{k: float(v) for k, v in measured.items() if v is not None},
             **self.conf["fuse"],
@@ -111,21 +122,52 @@ class Calibrator:
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-matching")
 
     def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:
-        rc = view.resize_crop
-        prior = None
-        if known_focal is not None:
-            prior = rc.focal_to_output(known_focal)
-            if self.conf["known_focal_sigma"] > 0:
-                prior = (prior, prior * self.conf["known_focal_sigma"])
+        """One camera's fit to its fields, in the original image's pixels."""
         fit = refine_camera(
             view.up, view.latitude, view.up_confidence, view.latitude_confidence,
-            image_size=view.image_size, pixel_xy=view.pixel_xy, focal_prior=prior, conf=self.conf["refine"],
+            image_size=view.image_size, pixel_xy=view.pixel_xy,
+            focal_prior=self._focal_prior(view, known_focal), conf=self.conf["refine"],
         )  # fmt: skip
-        return fit.in_original_pixels(rc)
+        return fit.in_original_pixels(view.resize_crop)
+
+    def _focal_prior(self, view: ViewFields, known_focal: float | None):
+        if known_focal is None:
+            return None
+        prior = view.resize_crop.focal_to_output(known_focal)
+        return (
+            (prior, prior * self.conf["known_focal_sigma"]) if self.conf["known_focal_sigma"] > 0 else prior
+        )
+
+    def _with_lines(
+        self,
+        view: ViewFields,
+        fit: CameraFit,
+        segments: np.ndarray,
+        K: np.ndarray,
+        k: float,
+        known_focal: float | None,
+    ) -> tuple[CameraFit, int]:
+        """``fit`` with the gravity of its fields and the image's line ``segments`` (original pixels; the
+        vertical ones are chosen in refine/lines.py), the lens distortion ``k`` (division model, with K)
+        taken out of them first; the focal stays."""
+        lines = self.conf["lines"]
+        ends = undistort_division(np.asarray(segments, dtype=float).reshape(-1, 2), K, k)
+        segments = view.resize_crop.points_to_output(ends).reshape(-1, 4)
+        found = gravity_with_lines(
+            view.up, view.latitude, view.up_confidence, view.latitude_confidence, segments,
+            image_size=view.image_size, pixel_xy=view.pixel_xy,
+            focal_prior=self._focal_prior(view, known_focal), conf=lines, refine_conf=self.conf["refine"],
+        )  # fmt: skip
+        if found is None:
+            return fit, 0
+        covariance = np.array(fit.covariance, dtype=float)
+        covariance[:2, :] = covariance[:, :2] = 0.0
+        covariance[:2, :2] = found.covariance
+        return fit.with_gravity(found.gravity_up, covariance), found.segments
 
     def fields_only(self, left: np.ndarray, right: np.ndarray) -> tuple[CameraFit, CameraFit]:
-        """Each camera's fit from its fields alone (network and refiner; no matches, no sharing), in the
-        original images' pixels: what the network itself reads (benchmarks/scale_sensitivity.py)."""
+        """Each camera's fit from its fields alone (network and refiner; no lines, no matches, no sharing),
+        in the original images' pixels: what the network itself reads (benchmarks/scale_sensitivity.py)."""
         net = self.network.predict(left, right, flip=self.conf["flip"])
         return self._refine_view(net.left, None), self._refine_view(net.right, None)
 
@@ -174,6 +216,15 @@ class Calibrator:
 
         K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
         K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
+        found_segments = None
+        if self.conf["lines"]["enabled"]:
+            # while the matching thread finishes (the fusion needs it); the segments' distortion is taken out
+            # once the fusion has measured it
+            tick = time.perf_counter()
+            found_segments = [
+                detect_segments(image, self.conf["lines"]["max_short_side"]) for image in (left, right)
+            ]
+            timing["lines"] = (time.perf_counter() - tick) * 1e3
         matches, timing["matching"] = matching.result()
         tick = time.perf_counter()
         gravity_sigma = math.radians(
@@ -196,6 +247,16 @@ class Calibrator:
         # the matches refine the focal lengths too (their ratio always; more where the cameras rotate)
         fit_left = fit_left.with_focal(fit_left.focal_px * pose.focal_scale[0])
         fit_right = fit_right.with_focal(fit_right.focal_px * pose.focal_scale[1])
+        used = [0, 0]
+        if found_segments is not None:
+            tick = time.perf_counter()
+            fit_left, used[0] = self._with_lines(
+                net.left, fit_left, found_segments[0], K_left, pose.distortion[0], focal_left
+            )
+            fit_right, used[1] = self._with_lines(
+                net.right, fit_right, found_segments[1], K_right, pose.distortion[1], focal_right
+            )
+            timing["lines"] += (time.perf_counter() - tick) * 1e3
         if self.conf["share_gravity"]:
             # the fusion's rotation sigma is the total over three axes
             fit_left, fit_right = share_gravity(
@@ -240,6 +301,8 @@ class Calibrator:
                     # relative 1-sigma of a learned baseline (the model's validation figure); None when given
                     "sigma_baseline_rel": self._learned_scale_sigma if scale_source == "learned" else None,
                 },
+                # vertical line segments each camera's gravity was fitted with (left, right)
+                "vertical_segments": used,
                 "warnings": list(warnings),
             },
         )  # fmt: skip

@@ -307,6 +307,7 @@ def refine_camera(
     pixel_xy: tuple[np.ndarray, np.ndarray] | None = None,
     focal_init: float | None = None,
     gravity_init: np.ndarray | None = None,
+    line_up: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
     conf: dict | None = None,
 ) -> CameraFit:
     """Fit focal length and gravity to one camera's perspective fields.
@@ -322,6 +323,8 @@ def refine_camera(
         pixel_xy: pixel coordinates (x [H x W], y [H x W]) of every field cell in that image, when the
             fields are not one cell per pixel (e.g. a network's stride-4 output); default the pixel grid.
         focal_init, gravity_init: a start (e.g. from the pose head); otherwise per ``conf["init"]``.
+        line_up: more up-direction samples besides the fields' (x [N], y [N], unit up [N x 2], weight [N]),
+            e.g. vertical line segments (``refine/lines.py``); they do not take part in the start.
         conf: overrides of :data:`default_conf`.
     Returns:
         A :class:`CameraFit` in the pixels of ``image_size``.
@@ -357,8 +360,17 @@ def refine_camera(
     gravity_value, gravity_sigma = _parse_gravity_prior(gravity_prior)
     fix_focal = focal_value is not None and focal_sigma is None
     fix_gravity = gravity_value is not None and gravity_sigma is None
+    n_field = len(x)
+    if line_up is not None:
+        lx, ly, lu, lw = (np.asarray(a, dtype=float) for a in line_up)
+        x, y = np.concatenate([x, lx]), np.concatenate([y, ly])
+        up_all = np.concatenate([up_s, lu.reshape(-1, 2)])
+        lat_all = np.concatenate([lat_s, np.zeros(len(lx))])
+        cu_all, cl_all = np.concatenate([cu, lw]), np.concatenate([cl, np.zeros(len(lx))])
+    else:
+        up_all, lat_all, cu_all, cl_all = up_s, lat_s, cu, cl
     problem = _Problem(
-        x, y, up_s, np.sin(lat_s), cu, cl, cx, cy, conf["huber_scale"],
+        x, y, up_all, np.sin(lat_all), cu_all, cl_all, cx, cy, conf["huber_scale"],
         None if focal_sigma is None else (np.log(focal_value), focal_sigma / focal_value),
         None if gravity_sigma is None else (gravity_value, gravity_sigma),
     )  # fmt: skip
@@ -382,8 +394,9 @@ def refine_camera(
     if g is None or log_f is None:
         known_focal = None if log_f is None else float(np.exp(log_f))
         g, focal = initial_estimate(
-            up_s, lat_s, cu, cl, x, y, width, height, gravity=g, focal=known_focal, conf=conf
-        )
+            up_s, lat_s, cu, cl, x[:n_field], y[:n_field], width, height,
+            gravity=g, focal=known_focal, conf=conf,
+        )  # fmt: skip
         log_f = float(np.log(focal))
     g = g / np.linalg.norm(g)
     log_f = float(np.clip(log_f, log_f_min, log_f_max))
