@@ -194,6 +194,7 @@ class PairJob:
     focal_right: float | None = None
     keep_evidence: bool = False  # keep what --same-rig needs (focal, gravity, pose, matches)
     pinhole: bool = False  # --pinhole: fit no lens distortion
+    lines: bool = True  # --no-lines: gravity from the fields alone, no vertical line segments
 
 
 @dataclass
@@ -301,18 +302,24 @@ def _init_worker(threads: int) -> None:
     cv2.setNumThreads(max(threads, 1))
 
 
-def calibrator_conf(pinhole: bool) -> dict:
-    """The Calibrator settings of ``--pinhole``: no lens distortion fitted."""
-    return {"fuse": {"distortion": False}} if pinhole else {}
+def calibrator_conf(pinhole: bool, lines: bool = True) -> dict:
+    """The Calibrator settings of ``--pinhole`` (no lens distortion fitted) and ``--no-lines`` (gravity from
+    the fields alone)."""
+    conf: dict = {"fuse": {"distortion": False}} if pinhole else {}
+    if not lines:
+        conf["lines"] = {"enabled": False}
+    return conf
 
 
 def _worker_task(entry: PairEntry, job: PairJob) -> PairOutcome:
-    key = (job.model, job.threads, job.pinhole)
+    key = (job.model, job.threads, job.pinhole, job.lines)
     if _WORKER.get("key") != key:
         from stereogeo_cli.pipeline import Calibrator
 
         try:
-            calibrator = Calibrator(job.model, threads=job.threads, conf=calibrator_conf(job.pinhole))
+            calibrator = Calibrator(
+                job.model, threads=job.threads, conf=calibrator_conf(job.pinhole, job.lines)
+            )
             _WORKER["calibrator"], _WORKER["key"] = calibrator, key
         except StereoGeoError as error:
             return PairOutcome(entry.name, entry.left, entry.right, "failed", str(error), fatal=True)
@@ -669,6 +676,7 @@ def run_batch(
     shard: tuple[int, int] | None = None,
     progress: bool = False,
     pinhole: bool = False,
+    lines: bool = True,
 ) -> BatchSummary:
     """Calibrate every pair of ``folder`` into ``out_dir/<name>/``, write the summaries (and ``rig/``).
 
@@ -677,6 +685,7 @@ def run_batch(
         workers: processes; each has its own network session with ``threads // workers`` threads.
         progress: a Rich progress bar on stderr (else one plain line per pair there).
         pinhole: the images have no lens distortion (rectified or undistorted): none is fitted.
+        lines: fit each camera's gravity to the image's vertical line segments too (docs/refine.md).
     Raises:
         StereoGeoError: no pairs (exit code 2), or a model that cannot be loaded. A pair that fails does
         not raise: its outcome is "failed". A failed joint calibration is returned in ``rig_error``.
@@ -691,12 +700,14 @@ def run_batch(
         if not calibrator_cache:
             from stereogeo_cli.pipeline import Calibrator
 
-            calibrator_cache.append(Calibrator(model, threads=threads, conf=calibrator_conf(pinhole)))
+            calibrator_cache.append(Calibrator(model, threads=threads, conf=calibrator_conf(pinhole, lines)))
         return calibrator_cache[0]
 
     if workers <= 1 and any(e.problem is None for e in entries):
         calibrator()  # a bad model fails here, before any pair
-    job = PairJob(out_dir, formats, baseline_m, model, threads, keep_evidence=same_rig, pinhole=pinhole)
+    job = PairJob(
+        out_dir, formats, baseline_m, model, threads, keep_evidence=same_rig, pinhole=pinhole, lines=lines
+    )
     pairs = [e for e in entries if e.problem is None]
     outcomes_by_name: dict[str, PairOutcome] = {}
     with _Progress(progress) as bar:
@@ -742,7 +753,7 @@ def _same_rig(outcomes, job: PairJob, workers, calibrator, bar: _Progress, basel
     second_job = PairJob(
         None, job.formats, job.baseline_m, job.model, job.threads,
         focal_left=focals[0].focal_px, focal_right=focals[1].focal_px, keep_evidence=True,
-        pinhole=job.pinhole,
+        pinhole=job.pinhole, lines=job.lines,
     )  # fmt: skip
     bar.stage("same rig", len(ok))
     entries = [PairEntry(o.name, o.left, o.right) for o in ok]

@@ -216,6 +216,15 @@ PinholeFlag = Annotated[
     ),
 ]  # calibrate and batch-calibrate
 
+LinesFlag = Annotated[
+    bool,
+    typer.Option(
+        "--lines/--no-lines",
+        help="Fit each camera's gravity to the image's vertical line segments as well as to the network's "
+        "fields. --no-lines: the fields alone (for scenes whose straight edges are not vertical).",
+    ),
+]  # calibrate and batch-calibrate
+
 
 @app.command()
 def calibrate(
@@ -248,6 +257,7 @@ def calibrate(
         float | None, typer.Option(help="The right camera's focal length in pixels, if known.")
     ] = None,
     pinhole: PinholeFlag = False,
+    lines: LinesFlag = True,
     model: Annotated[
         Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
     ] = None,
@@ -274,7 +284,7 @@ def calibrate(
         from stereogeo_cli.pipeline import Calibrator
 
         left_image, right_image = load_image(left), load_image(right)
-        calibrator = Calibrator(model, threads=threads, conf=calibrator_conf(pinhole))
+        calibrator = Calibrator(model, threads=threads, conf=calibrator_conf(pinhole, lines))
         result = calibrator.calibrate(
             left_image, right_image, baseline_m=baseline, focal_left=focal_left, focal_right=focal_right
         )
@@ -325,6 +335,7 @@ def batch_calibrate(
         float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
     ] = None,
     pinhole: PinholeFlag = False,
+    lines: LinesFlag = True,
     model: Annotated[
         Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
     ] = None,
@@ -359,7 +370,7 @@ def batch_calibrate(
         summary = run_batch(
             folder, output, formats=names, baseline_m=baseline, model=model, threads=threads,
             workers=workers, same_rig=same_rig, shard=shard_spec, progress=sys.stderr.isatty(),
-            pinhole=pinhole,
+            pinhole=pinhole, lines=lines,
         )  # fmt: skip
     except StereoGeoError as error:
         raise fail(error) from None

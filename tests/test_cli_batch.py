@@ -179,6 +179,17 @@ def test_all_pairs_ok_json_on_stdout(small_images, onnx_model, tmp_path):
     assert (out / "x1" / "intrinsics.yml").is_file() and (out / "x2" / "report.json").is_file()
 
 
+def test_no_lines_reaches_every_worker(small_images, onnx_model, tmp_path):
+    folder = pair_folder(tmp_path / "in", small_images)
+    for workers in ("1", "2"):
+        out = tmp_path / f"out{workers}"
+        args = ("batch-calibrate", folder, "-o", out, "--model", onnx_model, "--json", "--workers", workers)
+        result = invoke(*args, "--no-lines")
+        assert result.exit_code == 0, result.output
+        summary = json.loads(result.stdout)
+        assert [p["report"]["vertical_segments"] for p in summary["pairs"]] == [[0, 0], [0, 0]]
+
+
 def test_empty_folder(onnx_model, tmp_path):
     (tmp_path / "empty").mkdir()
     assert_error(invoke("batch-calibrate", tmp_path / "empty", "-o", tmp_path / "out", "--model", onnx_model),

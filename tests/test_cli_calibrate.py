@@ -177,6 +177,23 @@ def test_a_learned_baseline_carries_the_models_sigma_and_a_given_one_none(pair, 
     assert learned["scale_source"] == "learned" and learned["pose"]["sigma_baseline_rel"] == expected
 
 
+def test_no_lines_leaves_the_gravity_to_the_fields(pair, onnx_model):
+    """--no-lines: no segments used, and each camera's gravity is exactly what the fields alone give."""
+    from stereogeo_cli.pipeline import Calibrator
+
+    runs = {
+        flag: invoke("calibrate", *pair, "--model", onnx_model, "--json", flag)
+        for flag in ("--lines", "--no-lines")
+    }
+    assert all(run.exit_code == 0 for run in runs.values()), [run.output for run in runs.values()]
+    with_lines, without = (json.loads(run.stdout) for run in runs.values())
+    assert without["vertical_segments"] == [0, 0]
+    assert len(with_lines["vertical_segments"]) == 2 and min(with_lines["vertical_segments"]) >= 0
+    reference = Calibrator(onnx_model, conf={"lines": {"enabled": False}}).calibrate(*(rgb(p) for p in pair))
+    for side, fit in (("left", reference.left), ("right", reference.right)):
+        np.testing.assert_allclose(without[side]["gravity_up"], fit.gravity_up, atol=1e-9)
+
+
 def test_output_folder_gets_the_default_formats(pair, onnx_model, tmp_path):
     out = tmp_path / "calib"
     result = invoke("calibrate", *pair, "--model", onnx_model, "-o", out)
