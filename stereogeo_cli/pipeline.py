@@ -43,10 +43,13 @@ default_conf = {
     # as they are (stereogeo_cli/fuse/gravity.py). The correlation of the two cameras' gravity errors
     # only widens the reported sigmas: the errors' own correlation on the validation renders is 0.67 (pitch)
     # to 0.75 (roll) with stereogeo-m5; 0.85 is the value that keeps 68 % of those errors within 1 sigma
-    # after sharing (66.7 % roll, 67.3 % pitch; 0.7 gave 66.0 % and 65.2 %).
+    # after sharing (66.7 % roll, 67.3 % pitch; 0.7 gave 66.0 % and 65.2 %). Those are the fields' figures;
+    # with vertical lines (below) their sigma_scale was set after sharing at this correlation (0.95 changed
+    # the coverage by under 1 point).
     "share_gravity": True,
     "gravity_view_correlation": 0.85,
-    # vertical line segments set the gravity together with the fields (stereogeo_cli/refine/lines.py)
+    # vertical line segments set the gravity together with the fields, after the fusion has measured the
+    # lens (stereogeo_cli/refine/lines.py, docs/refine.md)
     "lines": {},  # overrides of stereogeo_cli.refine.lines.default_conf ({"enabled": False}: fields alone)
     "match": {},  # overrides of stereogeo_cli.fuse.matches.default_conf
     "fuse": {},  # overrides of stereogeo_cli.fuse.pose.default_conf
