@@ -201,8 +201,10 @@ def _print_summary(result, console) -> None:
         + (f" ± {100 * pose['sigma_baseline_rel']:.0f} %" if pose.get("sigma_baseline_rel") else "")
         + f" ({'given' if report['scale_source'] == 'baseline' else 'learned scale'})"
     )
+    segments = report.get("vertical_segments") or [0, 0]
+    gravity = f"vertical segments {segments[0]} / {segments[1]}" if any(segments) else "no vertical segments"
     console.print(f"matches: {report['matches']['found']} found, {report['matches']['inliers']} inliers; "
-                  f"time {report['timing_ms']['total']:.0f} ms")  # fmt: skip
+                  f"{gravity}; time {report['timing_ms']['total']:.0f} ms")  # fmt: skip
     for warning in report["warnings"]:
         console.print(f"[yellow]warning:[/yellow] {warning}")
 
