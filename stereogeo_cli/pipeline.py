@@ -146,14 +146,15 @@ class Calibrator:
         view: ViewFields,
         fit: CameraFit,
         segments: np.ndarray,
-        K: np.ndarray,
         k: float,
         known_focal: float | None,
     ) -> tuple[CameraFit, int]:
         """``fit`` with the gravity of its fields and the image's line ``segments`` (original pixels; the
-        vertical ones are chosen in refine/lines.py), the lens distortion ``k`` (division model, with K)
-        taken out of them first; the focal stays."""
+        vertical ones are chosen in refine/lines.py), the lens distortion ``k`` (division model in the
+        normalised coordinates of ``fit``'s K, as the fusion gives it) taken out of them first; the focal
+        stays."""
         lines = self.conf["lines"]
+        K = intrinsic_matrix(fit.focal_px, fit.width, fit.height)
         ends = undistort_division(np.asarray(segments, dtype=float).reshape(-1, 2), K, k)
         segments = view.resize_crop.points_to_output(ends).reshape(-1, 4)
         found = gravity_with_lines(
@@ -253,11 +254,12 @@ class Calibrator:
         used = [0, 0]
         if found_segments is not None:
             tick = time.perf_counter()
+            # after the matches' focal refinement: the fusion's k is in the refined K's coordinates
             fit_left, used[0] = self._with_lines(
-                net.left, fit_left, found_segments[0], K_left, pose.distortion[0], focal_left
+                net.left, fit_left, found_segments[0], pose.distortion[0], focal_left
             )
             fit_right, used[1] = self._with_lines(
-                net.right, fit_right, found_segments[1], K_right, pose.distortion[1], focal_right
+                net.right, fit_right, found_segments[1], pose.distortion[1], focal_right
             )
             timing["lines"] += (time.perf_counter() - tick) * 1e3
         if self.conf["share_gravity"]:
