@@ -16,10 +16,6 @@ from stereogeo_cli.refine.lines import (
 )
 
 
-def angle_diff(a, b):
-    return abs((a - b + 180) % 360 - 180)
-
-
 def true_vertical_segments(rng, width, height, focal, gravity, count=40, length=30.0):
     """Segments along the camera's true up field (images of vertical lines), plus as many at random angles."""
     cx, cy = principal_point(width, height)

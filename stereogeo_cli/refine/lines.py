@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from stereogeo_cli.geometry.camera import principal_point
-from stereogeo_cli.geometry.fields import up_and_sin_latitude
+from stereogeo_cli.geometry.fields import up_at
 from stereogeo_cli.refine.lm import CameraFit, refine_camera
 
 default_conf = {
@@ -131,7 +131,7 @@ def camera_sampler(fit: CameraFit) -> Callable:
     cx, cy = principal_point(fit.width, fit.height)
 
     def sample(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return up_and_sin_latitude(fit.gravity_up, fit.focal_px, x, y, cx, cy)[0]
+        return up_at(fit.gravity_up, fit.focal_px, x, y, cx, cy)
 
     return sample
 
