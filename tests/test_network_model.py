@@ -237,6 +237,25 @@ def test_stride8_soft_matching_and_scale_votes_read_a_known_displacement():
     )
 
 
+def test_pose_scale_terms_make_up_the_length_of_t():
+    """The diagnostic terms (benchmarks/pose_scale.py) are the forward pass's own: exp(Σ weight·(vote + log
+    parallax)) is |T|, the weights sum to 1 and the matches are the epipolar loss's."""
+    torch.manual_seed(1)
+    model = StereoGeoNet(V2).eval()
+    left, right = torch.rand(2, 3, 64, 96), torch.rand(2, 3, 64, 96)
+    with torch.no_grad():
+        t = model(left, right)["translation"]
+        terms = model.pose_scale_terms(left, right)
+    n_cells = (64 // 8) * (96 // 8)
+    assert terms["weight"].shape == terms["vote"].shape == terms["log_parallax"].shape == (2, n_cells, 1)
+    assert terms["left_xy"].shape == terms["right_xy"].shape == (2, n_cells, 2)
+    torch.testing.assert_close(terms["weight"].sum(1), torch.ones(2, 1))
+    length = torch.exp((terms["weight"] * (terms["vote"] + terms["log_parallax"])).sum((1, 2)))
+    torch.testing.assert_close(length, t.norm(dim=1), rtol=1e-5, atol=0)
+    with pytest.raises(ValueError, match="no votes"):
+        StereoGeoNet({**V2, "pose_scale_votes": False}).eval().pose_scale_terms(left, right)
+
+
 def test_checkpoints_from_before_the_stride8_head_still_load(tmp_path):
     """A checkpoint whose conf predates ``pose_match_stride`` and ``pose_scale_votes``: the stride-16 head."""
     from stereogeo_cli.network.checkpoint import load_checkpoint, save_checkpoint

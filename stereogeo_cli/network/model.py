@@ -337,6 +337,29 @@ class PoseHead(nn.Module):
         """Stride-16 (and stride-8) and deepest features of both views → quaternion [B x 4] (w, x, y, z),
         unit, w ≥ 0; translation [B x 3] in metres; the soft matches (left cell, expected right position)
         [B x N_left x 2] each, in the cells' normalised coordinates (for the epipolar loss)."""
+        q, t, matches, _ = self._run(match_left, match_right, feat_left, feat_right, fine_left, fine_right)
+        return q, t, matches
+
+    def scale_terms(self, *features: torch.Tensor | None) -> dict[str, torch.Tensor]:
+        """What the length of T is made of (``scale_votes`` heads; the arguments are :meth:`forward`'s), per
+        left cell [B x N_left x k]: ``left_xy``, ``right_xy`` (its soft match), ``log_parallax`` (log length
+        of the displacement minus ``infinity`` [B x 2], the learned displacement of a point at infinity),
+        ``vote`` (the learned log-depth term), ``vote_logit`` and ``weight`` (the softmax over the cells of
+        the logit plus ``vote_parallax_gain`` times the log parallax); all in the cells' normalised
+        coordinates. For diagnosis (benchmarks/pose_scale.py)."""
+        if not self.scale_votes:
+            raise ValueError("this pose head regresses the length of T; it has no votes")
+        return self._run(*features)[3]
+
+    def _run(
+        self,
+        match_left: torch.Tensor,
+        match_right: torch.Tensor,
+        feat_left: torch.Tensor,
+        feat_right: torch.Tensor,
+        fine_left: torch.Tensor | None = None,
+        fine_right: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, tuple[torch.Tensor, torch.Tensor], dict[str, torch.Tensor]]:
         reduced_left, reduced_right = self.reduce(feat_left), self.reduce(feat_right)
         desc_left, context_left = self.match_features(fine_left, match_left, reduced_left)
         desc_right, _ = self.match_features(fine_right, match_right, reduced_right)
@@ -358,13 +381,19 @@ class PoseHead(nn.Module):
         q = F.normalize(out[:, :4], dim=1, eps=1e-8)
         q = torch.where(q[:, :1] < 0, -q, q)
         t = out[:, 4:]
+        terms: dict[str, torch.Tensor] = {}
         if votes is not None:  # direction from the MLP, length from the votes
-            parallax = corr[..., 4:6] - self.infinity(hidden)[:, None, :]
-            log_parallax = _log_length(parallax)
+            infinity = self.infinity(hidden)
+            log_parallax = _log_length(corr[..., 4:6] - infinity[:, None, :])
             weight = torch.softmax(votes[..., 1:] + self.vote_parallax_gain * log_parallax, dim=1)
             log_length = (weight * (votes[..., :1] + log_parallax)).sum(1)  # [B x 1]
             t = F.normalize(t, dim=1, eps=1e-8) * torch.exp(log_length)
-        return q, t, (corr[..., 0:2], corr[..., 2:4])
+            terms = {
+                "left_xy": corr[..., 0:2], "right_xy": corr[..., 2:4], "infinity": infinity,
+                "log_parallax": log_parallax, "vote": votes[..., :1], "vote_logit": votes[..., 1:],
+                "weight": weight,
+            }  # fmt: skip
+        return q, t, (corr[..., 0:2], corr[..., 2:4]), terms
 
 
 class StereoGeoNet(nn.Module):
@@ -458,6 +487,14 @@ class StereoGeoNet(nn.Module):
             "latitude_confidence": torch.sigmoid(lat[:, 1]),
         }
         return fields, (feats[16], feats[0], feats[8])
+
+    def pose_scale_terms(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The pose head's :meth:`PoseHead.scale_terms` for a stereo pair (inputs as :meth:`forward`)."""
+        _, feat_left = self.forward_view(left)
+        _, feat_right = self.forward_view(right)
+        return self.pose_head.scale_terms(
+            feat_left[0], feat_right[0], feat_left[1], feat_right[1], feat_left[2], feat_right[2]
+        )
 
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
         """Stereo pair → fields of each view and the relative pose.

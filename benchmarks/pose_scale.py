@@ -1,0 +1,207 @@
+"""What the pose head's baseline length is made of, on a dataset with ground truth.
+
+    python benchmarks/pose_scale.py CHECKPOINT DATASET [--count N] [--json FILE]
+
+The head reads |T| as a weighted mean over the left view's stride-8 cells of (log parallax + a learned
+log-depth term), the parallax being the cell's soft-match displacement minus the learned displacement of a
+point at infinity (the rotation's share). Per pair with a baseline, this compares each part with the truth:
+
+- ``length``: |T̂| / |T| − 1, the head's baseline error (the model card's "translation / baseline");
+- ``parallax``: the head's vote-weighted parallax against the median true parallax of SIFT matches (kept
+  within 1 px of the true epipolar lines; the true rotation's displacement taken off), both in units of
+  half the network input's short side; and the slope of one against the other over the pairs (1 is ideal);
+- ``infinity``: the learned point-at-infinity displacement against the true rotation's (median over the
+  cells);
+- ``with true infinity``: the length again with the true rotation's displacement in place of the learned
+  one, the votes unchanged (what the matches' rotation could give the head as trained).
+
+Torch only (CPU); the network input is prepared as ``calibrate`` prepares it.
+"""
+
+import argparse
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from stereogeo_cli.evaluate import read_dataset
+from stereogeo_cli.geometry.camera import apply_resize_crop, resize_crop_for_network
+from stereogeo_cli.io import load_image
+from stereogeo_cli.network.checkpoint import load_checkpoint
+
+MATCH_STRIDE = 8
+EPIPOLAR_PX = 1.0
+
+
+def skew(t: np.ndarray) -> np.ndarray:
+    return np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+
+
+def sift_parallax(left: np.ndarray, right: np.ndarray, record: dict, sift) -> tuple[float, int]:
+    """Median true parallax (pixels of the left image) of SIFT matches on the true epipolar lines."""
+    grey = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in (left, right)]
+    (k1, d1), (k2, d2) = (sift.detectAndCompute(g, None) for g in grey)
+    if d1 is None or d2 is None or len(k1) < 8 or len(k2) < 8:
+        return float("nan"), 0
+    pairs = cv2.BFMatcher().knnMatch(d1, d2, k=2)
+    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
+    if len(good) < 8:
+        return float("nan"), 0
+    p1 = np.float64([k1[g.queryIdx].pt for g in good])
+    p2 = np.float64([k2[g.trainIdx].pt for g in good])
+    K1, K2 = np.array(record["left"]["K"]), np.array(record["right"]["K"])
+    R, T = np.array(record["R"]), np.array(record["T"])
+    F = np.linalg.inv(K2).T @ skew(T) @ R @ np.linalg.inv(K1)
+    x1, x2 = np.c_[p1, np.ones(len(p1))], np.c_[p2, np.ones(len(p2))]
+    lines = x1 @ F.T
+    on_line = np.abs(np.sum(x2 * lines, 1)) / np.hypot(lines[:, 0], lines[:, 1]) < EPIPOLAR_PX
+    if on_line.sum() < 8:
+        return float("nan"), int(on_line.sum())
+    at_infinity = x1 @ (K2 @ R @ np.linalg.inv(K1)).T
+    at_infinity = at_infinity[:, :2] / at_infinity[:, 2:]
+    return float(np.median(np.linalg.norm(p2 - at_infinity, axis=1)[on_line])), int(on_line.sum())
+
+
+def epipolar_distance(terms: dict, record: dict, rc_left, rc_right) -> np.ndarray:
+    """Distance (network-input px) of each left cell's soft match to its true epipolar line."""
+
+    def pixels(xy, rc):
+        width, height = rc.out_size
+        return rc.points_to_input(xy * (min(width, height) / 2) + np.array([width / 2, height / 2]))
+
+    K1, K2 = np.array(record["left"]["K"]), np.array(record["right"]["K"])
+    F = np.linalg.inv(K2).T @ skew(np.array(record["T"])) @ np.array(record["R"]) @ np.linalg.inv(K1)
+    x1 = np.c_[pixels(terms["left_xy"], rc_left), np.ones(len(terms["left_xy"]))]
+    x2 = np.c_[pixels(terms["right_xy"], rc_right), np.ones(len(terms["right_xy"]))]
+    lines = x1 @ F.T
+    return np.abs(np.sum(x2 * lines, 1)) / np.hypot(lines[:, 0], lines[:, 1]) * rc_right.scale
+
+
+def true_infinity(record: dict, rc_left, rc_right) -> np.ndarray:
+    """Displacement [N x 2] of a point at infinity seen by each stride-8 left cell (the true rotation), in
+    units of half the right network input's short side (the head's cell coordinates)."""
+    width, height = rc_left.out_size
+    cols, rows = np.meshgrid(np.arange(width // MATCH_STRIDE), np.arange(height // MATCH_STRIDE))
+    centre = (MATCH_STRIDE - 1) / 2
+    cells = np.stack([cols * MATCH_STRIDE + centre, rows * MATCH_STRIDE + centre], -1).reshape(-1, 2)
+    left_px = rc_left.points_to_input(cells)
+    K1, K2, R = np.array(record["left"]["K"]), np.array(record["right"]["K"]), np.array(record["R"])
+    seen = np.c_[left_px, np.ones(len(left_px))] @ (K2 @ R @ np.linalg.inv(K1)).T
+    right_cells = rc_right.points_to_output(seen[:, :2] / seen[:, 2:])
+    # cell coordinates are relative to each input's centre; the two inputs have the same size here
+    return (right_cells - cells) / (min(rc_right.out_size) / 2)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("checkpoint")
+    parser.add_argument("dataset")
+    parser.add_argument("--count", type=int, default=0, help="first N pairs (0: all)")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--json", help="write the per-pair rows here")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    model, checkpoint = load_checkpoint(args.checkpoint)
+    short_side = int(checkpoint.get("input_short_side", 224))
+    gain = float(model.pose_head.vote_parallax_gain.detach())
+    sift = cv2.SIFT_create(2000)
+    rows = []
+    records = read_dataset(args.dataset)
+    for record in records[: args.count or None]:
+        T = np.array(record["T"] or [0, 0, 0], dtype=float)
+        if record["R"] is None or np.linalg.norm(T) == 0:
+            continue  # no baseline to read (panorama crops: one centre)
+        images = [load_image(Path(args.dataset) / side / f"{record['id']}.png") for side in ("left", "right")]
+        rcs = [resize_crop_for_network(im.shape[1], im.shape[0], short_side, 32) for im in images]
+        if rcs[0].out_size != rcs[1].out_size:
+            continue  # the true-infinity term assumes one input size
+        tensors = [
+            torch.from_numpy(apply_resize_crop(im, rc).transpose(2, 0, 1)[None].astype(np.float32) / 255.0)
+            for im, rc in zip(images, rcs, strict=True)
+        ]
+        with torch.no_grad():
+            terms = {k: v[0].numpy().astype(float) for k, v in model.pose_scale_terms(*tensors).items()}
+        weight, vote = terms["weight"][:, 0], terms["vote"][:, 0]
+        log_length = float(np.sum(weight * (vote + terms["log_parallax"][:, 0])))
+        inf_true = true_infinity(record, *rcs)
+        displacement = terms["right_xy"] - terms["left_xy"]
+        log_par_true_inf = np.log(np.linalg.norm(displacement - inf_true, axis=1) + 1e-3)
+        logits = terms["vote_logit"][:, 0] + gain * log_par_true_inf
+        w_true = np.exp(logits - logits.max())
+        w_true /= w_true.sum()
+        true_parallax_px, n_sift = sift_parallax(*images, record, sift)
+        baseline = float(np.linalg.norm(T))
+        rows.append(
+            {
+                "id": record["id"],
+                "baseline_m": baseline,
+                "length_error": float(np.exp(log_length) / baseline - 1),
+                "length_error_true_infinity": float(
+                    np.exp(np.sum(w_true * (vote + log_par_true_inf))) / baseline - 1
+                ),
+                "head_parallax": float(np.exp(np.sum(weight * terms["log_parallax"][:, 0]))),
+                "true_parallax": true_parallax_px * rcs[0].scale / (min(rcs[0].out_size) / 2),
+                "sift_matches": n_sift,
+                "epipolar_px": float(np.median(epipolar_distance(terms, record, *rcs))),
+                "infinity_error": float(np.linalg.norm(terms["infinity"] - np.median(inf_true, 0))),
+                "true_infinity": float(np.linalg.norm(np.median(inf_true, 0))),
+            }
+        )
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    report(rows, args.dataset)
+
+
+def report(rows: list[dict], dataset: str) -> None:
+    def med(key, subset=None):
+        vals = np.array([r[key] for r in (subset if subset is not None else rows)], dtype=float)
+        vals = vals[np.isfinite(vals)]
+        return float(np.median(vals)) if len(vals) else float("nan")
+
+    abs_rows = [{**r, "a": abs(r["length_error"]), "b": abs(r["length_error_true_infinity"])} for r in rows]
+    print(f"# {dataset}: {len(rows)} pairs with a baseline\n")
+    print("| median | value |\n|---|---|")
+    print(f"| baseline error \\|T̂\\|/\\|T\\| − 1 (absolute) | {med('a', abs_rows):.1%} |")
+    print(f"| ... with the true rotation's point at infinity | {med('b', abs_rows):.1%} |")
+    print(f"| signed log ratio | {np.median([np.log1p(r['length_error']) for r in rows]):+.3f} |")
+    print(f"| head's matches: distance to the true epipolar line (network px) | {med('epipolar_px'):.2f} |")
+    print(f"| learned point-at-infinity error (half-short units) | {med('infinity_error'):.3f} |")
+    print(f"| true point-at-infinity displacement | {med('true_infinity'):.3f} |")
+    print(f"| true parallax (SIFT, half-short units) | {med('true_parallax'):.3f} |")
+    print(f"| head's vote-weighted parallax | {med('head_parallax'):.3f} |")
+    print("\n| true baseline | pairs | log(\\|T̂\\|/\\|T\\|), median | error, median (absolute) |")
+    print("|---|---|---|---|")
+    for lo, hi in ((0.0, 0.1), (0.1, 0.2), (0.2, 0.4), (0.4, np.inf)):
+        sub = [r for r in rows if lo <= r["baseline_m"] < hi]
+        if sub:
+            log_ratio = float(np.median([np.log1p(r["length_error"]) for r in sub]))
+            error = float(np.median([abs(r["length_error"]) for r in sub]))
+            print(f"| {lo}–{hi} m | {len(sub)} | {log_ratio:+.2f} | {error:.1%} |")
+    ok = [r for r in rows if np.isfinite(r["true_parallax"]) and r["true_parallax"] > 0]
+    if len(ok) > 2:
+        x = np.log([r["true_parallax"] for r in ok])
+        y = np.log([r["head_parallax"] for r in ok])
+        b = np.log([r["baseline_m"] for r in ok])
+        print(
+            f"\nSlope of log head parallax on log true parallax: {np.polyfit(x, y, 1)[0]:.2f} "
+            f"(correlation {np.corrcoef(x, y)[0, 1]:.2f}; {len(ok)} pairs with ≥ 8 SIFT matches)."
+        )
+        print(
+            f"Slope of log true parallax on log baseline: {np.polyfit(b, x, 1)[0]:.2f} "
+            f"(correlation {np.corrcoef(b, x)[0, 1]:.2f}: the depth's share)."
+        )
+        print("\n| true parallax | pairs | head's parallax (median) | baseline error (median, absolute) |")
+        print("|---|---|---|---|")
+        for lo, hi in ((0, 0.02), (0.02, 0.05), (0.05, 0.1), (0.1, 0.2), (0.2, np.inf)):
+            sub = [r for r in ok if lo <= r["true_parallax"] < hi]
+            if sub:
+                print(
+                    f"| {lo}–{hi} | {len(sub)} | {med('head_parallax', sub):.3f} | "
+                    f"{float(np.median([abs(r['length_error']) for r in sub])):.1%} |"
+                )
+
+
+if __name__ == "__main__":
+    main()
