@@ -221,7 +221,7 @@ def test_stride8_soft_matching_and_scale_votes_read_a_known_displacement():
         last.bias[-2:] = torch.tensor([math.log(3.0), 0.0])
         images = torch.rand(1, 3, 64, 96)
         fields, (mid, deep, fine) = model.forward_view(images)
-        _, t, _ = head(mid, mid, deep, deep, fine, fine)
+        _, t, _, _ = head(mid, mid, deep, deep, fine, fine)
         reduced = head.reduce(deep)
         desc, context = head.match_features(fine, mid, reduced)
         displacement = head.correspondences(desc, desc, context)[0, :, 4:6]
@@ -230,7 +230,7 @@ def test_stride8_soft_matching_and_scale_votes_read_a_known_displacement():
     # The displacement of a point at infinity (here a set 0.1 to the right) is taken off before voting.
     with torch.no_grad():
         head.infinity.bias.copy_(torch.tensor([0.1, 0.0]))
-        _, t, _ = head(mid, mid, deep, deep, fine, fine)
+        _, t, _, _ = head(mid, mid, deep, deep, fine, fine)
     parallax = displacement - torch.tensor([0.1, 0.0])
     torch.testing.assert_close(
         t.norm(), 3.0 * torch.exp(torch.log(parallax.norm(dim=1) + 1e-3).mean()), rtol=1e-4, atol=0

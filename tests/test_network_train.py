@@ -294,3 +294,106 @@ def test_epipolar_loss_measures_the_fusions_sampson_distance():
     expected = np.mean(np.log1p((d / (half_short * scale)) ** 2))
     as_t = [torch.tensor(a, dtype=torch.float64) for a in (xy_left, xy_right, focal[None], R[None], T[None])]
     np.testing.assert_allclose(float(epipolar_loss(*as_t, half_short, scale)), expected, rtol=1e-9)
+
+
+def _bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    return np.stack([cv2.remap(image, *np.float32(xy[None].transpose(2, 0, 1)), cv2.INTER_LINEAR)[0]])[0]
+
+
+@pytest.fixture(scope="module")
+def depth_pair():
+    """A rendered pair with depth maps and a baseline (no photometric augmentation, so that a surface looks
+    the same in both views)."""
+    from stereogeo_cli.synth.config import SynthConfig
+    from stereogeo_cli.synth.sample import sample_pair
+
+    cfg = SynthConfig(short_side=192, depth=True, augment=0.0, texture_size=128, texture_layers=24)
+    for index in range(20):
+        sample = sample_pair(11, index, cfg)
+        if np.linalg.norm(sample.calib["T"]) > 0.1 and (sample.depth_left > 0).mean() > 0.9:
+            return sample
+    raise AssertionError("no rendered pair with a baseline and little sky in 20 draws")
+
+
+def test_match_targets_land_on_the_same_surface(depth_pair):
+    """The true right position of each left cell (from the depth maps) shows what the left cell shows: small
+    patches agree there far better than two cells off, and the positions lie on the true epipolar lines."""
+    s = depth_pair
+    sample = training_sample(s.left, s.right, s.calib, (224, 160), (s.depth_left, s.depth_right))
+    valid = sample["match_valid"].numpy()
+    assert valid.mean() > 0.5
+    half, offset = 80.0, np.array([112.0, 80.0])
+    cols, rows = np.meshgrid(np.arange(224 // 8), np.arange(160 // 8))
+    left_px = np.stack([cols * 8 + 3.5, rows * 8 + 3.5], -1).reshape(-1, 2)[valid]
+    right_px = sample["match_xy"].numpy()[valid] * half + offset
+    left_img = cv2.blur(sample["left"].numpy().transpose(1, 2, 0), (3, 3))
+    right_img = cv2.blur(sample["right"].numpy().transpose(1, 2, 0), (3, 3))
+    at_left = _bilinear(left_img, left_px)
+    here = np.abs(_bilinear(right_img, right_px) - at_left).mean(-1)
+    off = np.abs(_bilinear(right_img, right_px + [16.0, 0.0]) - at_left).mean(-1)
+    assert np.median(here) < 0.02 and np.median(here) < 0.3 * np.median(off)
+    # on the true epipolar lines (the cut keeps a centred pinhole: K from the cut's focal)
+    f_left, f_right = sample["focal"].numpy()
+    K1 = np.array([[f_left, 0, 112], [0, f_left, 80], [0, 0, 1.0]]) @ np.diag([1, 1, 1.0])
+    K2 = np.array([[f_right, 0, 112], [0, f_right, 80], [0, 0, 1.0]])
+    R, T = sample["R"].numpy().astype(float), sample["T"].numpy().astype(float)
+    tx = np.array([[0, -T[2], T[1]], [T[2], 0, -T[0]], [-T[1], T[0], 0]])
+    F = np.linalg.inv(K2).T @ tx @ R @ np.linalg.inv(K1)
+    lines = np.c_[left_px - 0.5, np.ones(len(left_px))] @ F.T
+    d = np.abs(np.sum(np.c_[right_px - 0.5, np.ones(len(left_px))] * lines, 1)) / np.hypot(*lines[:, :2].T)
+    assert np.percentile(d, 95) < 0.05
+
+
+def test_match_losses_vanish_at_the_truth_and_grow_away_from_it(depth_pair):
+    from stereogeo_cli.network.losses import match_losses
+
+    s = depth_pair
+    one = training_sample(s.left, s.right, s.calib, (224, 160), (s.depth_left, s.depth_right))
+    batch = {k: v[None] for k, v in one.items()}
+    cols, rows = np.meshgrid(np.arange(28), np.arange(20))
+    left_xy = (np.stack([cols * 8 + 3.5, rows * 8 + 3.5], -1).reshape(1, -1, 2) - [112, 80]) / 80
+    left_xy = torch.tensor(left_xy, dtype=torch.float32)
+    parallax = (batch["match_xy"] - batch["infinity_xy"]).norm(dim=-1, keepdim=True)
+    truth = {
+        "pose_match_left": left_xy,
+        "pose_match_right": batch["match_xy"].clone(),
+        "pose_infinity": (batch["infinity_xy"] - left_xy).mean(1),
+        "pose_vote": torch.log(batch["T"].norm()) - torch.log(parallax + 1e-3),
+    }
+    conf = {"match_weight": 1.0, "vote_weight": 1.0, "infinity_weight": 1.0, "match_scale": 0.03,
+            "vote_min_parallax": 0.02, "vote_beta": 0.1, "infinity_beta": 0.01}  # fmt: skip
+    at_truth = match_losses(truth, batch, conf)
+    assert set(at_truth) == {"match", "vote", "infinity"}
+    for value in at_truth.values():
+        assert float(value) < 1e-6
+    moved = {k: v + 0.05 for k, v in truth.items()}
+    for name, value in match_losses(moved, batch, conf).items():
+        assert float(value) > 1e-3, name
+    no_depth = training_sample(s.left, s.right, s.calib, (224, 160))
+    assert not no_depth["match_valid"].any()
+    assert torch.equal(no_depth["infinity_xy"], one["infinity_xy"])
+
+
+def test_training_on_depth_maps_runs_the_match_losses_and_leaves_the_frozen_parts(tmp_path):
+    """A dataset made with --depth feeds the pose head's match, vote and point-at-infinity losses; with
+    ``train_only: [pose_head]`` the fields' weights do not move."""
+    from stereogeo_cli.synth.config import SynthConfig
+    from stereogeo_cli.synth.dataset import make_dataset
+
+    data = tmp_path / "depth"
+    make_dataset(data, 4, 5, SynthConfig(short_side=96, depth=True), workers=1, progress=False)
+    config = _config(
+        tmp_path, data, steps=2, train_only=["pose_head"], refiner_start=0,
+        loss={"match_weight": 1.0, "vote_weight": 1.0, "infinity_weight": 1.0, "epipolar_weight": 1.0},
+    )  # fmt: skip
+    first = _run_train(["--config", str(config), "--steps", "1", "--out", str(tmp_path / "one")])
+    assert first.returncode == 0, first.stderr
+    run = _run_train(["--config", str(config), "--init", str(tmp_path / "one" / "latest.pt")])
+    assert run.returncode == 0, run.stderr
+    log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    trained = [r for r in log if r["event"] == "train"]
+    assert trained and all(np.isfinite(r[k]) for r in trained for k in ("match", "infinity"))
+    a = torch.load(tmp_path / "one" / "latest.pt", weights_only=True)["model"]
+    b = torch.load(tmp_path / "run" / "latest.pt", weights_only=True)["model"]
+    assert all(torch.equal(a[k], b[k]) for k in a if not k.startswith("pose_head"))
+    assert any(not torch.equal(a[k], b[k]) for k in a if k.startswith("pose_head"))

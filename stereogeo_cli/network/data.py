@@ -35,17 +35,80 @@ def _camera(calib_camera: dict, rc: ResizeCrop) -> tuple[float, np.ndarray]:
     return focal, np.full(3, np.nan) if g is None else np.asarray(g, dtype=float)
 
 
-def training_sample(left: np.ndarray, right: np.ndarray, calib: dict, size: tuple[int, int]) -> dict:
+MATCH_STRIDE = 8  # the pose head's matching cells (``pose_match_stride``)
+OCCLUSION_TOLERANCE = 0.03  # a left point is seen by the right camera if its depth there agrees this well
+
+
+def _nearest(depth: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Depth [N] at the pixels nearest to ``points`` [N x 2] (input pixels) and whether they are inside."""
+    h, w = depth.shape
+    col, row = np.rint(points[:, 0]).astype(np.int64), np.rint(points[:, 1]).astype(np.int64)
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    return depth[np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)], inside
+
+
+def match_targets(calib: dict, rc_left: ResizeCrop, rc_right: ResizeCrop, depth=None,
+                  stride: int = MATCH_STRIDE) -> dict[str, np.ndarray]:  # fmt: skip
+    """The true right position of every left stride-``stride`` cell of a cut pair, in the pose head's cell
+    coordinates (pixels relative to the cut's centre over half its short side; the two cuts have one size).
+
+    Returns ``infinity_xy`` [N x 2]: where a point at infinity seen by the cell's centre appears (the
+    rotation alone; zeros without a pose); and with ``depth`` (left, right z-depth [H x W] of the uncut
+    images, 0 = nothing hit: the sky) ``match_xy`` [N x 2] and ``match_valid`` [N]: where the cell's
+    surface point appears, valid when it is in front of the right camera, inside its cut and not hidden
+    (the right depth agrees within 3 %; a sky cell must see sky). Cells in row-major order, as the head's.
+    """
+    width, height = rc_left.out_size
+    cols, rows = np.meshgrid(np.arange(width // stride), np.arange(height // stride))
+    centre = (stride - 1) / 2
+    cells = np.stack([cols * stride + centre, rows * stride + centre], -1).reshape(-1, 2).astype(float)
+    half = min(width, height) / 2
+    offset = np.array([width / 2, height / 2])
+    n = len(cells)
+    out = {"infinity_xy": np.zeros((n, 2)), "match_xy": np.zeros((n, 2)), "match_valid": np.zeros(n, bool)}
+    if calib.get("R") is None:
+        return {k: v.astype(np.float32) if v.dtype != bool else v for k, v in out.items()}
+    K1, K2 = np.asarray(calib["left"]["K"], float), np.asarray(calib["right"]["K"], float)
+    R, T = np.asarray(calib["R"], float), np.asarray(calib["T"] or (0.0, 0.0, 0.0), float)
+    rays = np.c_[rc_left.points_to_input(cells), np.ones(n)] @ np.linalg.inv(K1).T  # z = 1
+    ahead = rays @ R.T
+    z_inf = ahead[:, 2]
+    seen = np.where(z_inf[:, None] > 1e-6, ahead[:, :2] / np.maximum(z_inf, 1e-6)[:, None], 0.0)
+    at_infinity = rc_right.points_to_output(seen * np.diag(K2)[:2] + K2[:2, 2])
+    out["infinity_xy"] = (at_infinity - offset) / half
+    if depth is not None:
+        depth_left, depth_right = depth
+        d, _ = _nearest(depth_left, rc_left.points_to_input(cells))
+        points = rays * d[:, None] @ R.T + T  # surface points in the right camera's frame
+        sky = d <= 0
+        z = np.where(sky, z_inf, points[:, 2])
+        xy = np.where(sky[:, None], ahead[:, :2], points[:, :2]) / np.maximum(z, 1e-6)[:, None]
+        right_px = xy * np.diag(K2)[:2] + K2[:2, 2]
+        d_right, inside = _nearest(depth_right, right_px)
+        target = rc_right.points_to_output(right_px)
+        in_cut = np.all((target >= -0.5) & (target <= np.array([width, height]) - 0.5), axis=1)
+        visible = np.where(sky, d_right <= 0, np.abs(d_right - z) <= OCCLUSION_TOLERANCE * z)
+        out["match_xy"] = (target - offset) / half
+        out["match_valid"] = (z > 1e-3) & inside & in_cut & visible
+    return {k: v.astype(np.float32) if v.dtype != bool else v for k, v in out.items()}
+
+
+def training_sample(
+    left: np.ndarray, right: np.ndarray, calib: dict, size: tuple[int, int], depth=None
+) -> dict:
     """Cut a pair to ``size`` (width, height) and return tensors with its ground truth.
 
     Returns ``left``, ``right`` [3 x H x W] float32 in [0, 1]; ``focal`` [2] (left, right) in pixels of the
     cut images; ``gravity`` [2 x 3] up vectors (NaN when unknown); ``R`` [3 x 3], ``T`` [3] metres;
-    ``has_pose`` and ``has_translation`` (bool tensors: a pure-rotation pair has T = 0).
+    ``has_pose`` and ``has_translation`` (bool tensors: a pure-rotation pair has T = 0); and the pose
+    head's cells' :func:`match_targets` (``infinity_xy``, ``match_xy``, ``match_valid``; no match is valid
+    without ``depth``, the uncut left and right depth maps).
     """
-    images, focals, gravities = [], [], []
+    images, focals, gravities, cuts = [], [], [], []
     for image, cam in ((left, calib["left"]), (right, calib["right"])):
         h, w = image.shape[:2]
         rc = cover_crop(w, h, *size)
+        cuts.append(rc)
         cut = apply_resize_crop(image, rc)
         images.append(torch.from_numpy(np.ascontiguousarray(cut.transpose(2, 0, 1))).float().div_(255.0))
         focal, g = _camera(cam, rc)
@@ -54,7 +117,9 @@ def training_sample(left: np.ndarray, right: np.ndarray, calib: dict, size: tupl
     has_pose = calib.get("R") is not None and calib.get("T") is not None
     R = np.asarray(calib["R"], dtype=float) if has_pose else np.eye(3)
     T = np.asarray(calib["T"], dtype=float) if has_pose else np.zeros(3)
+    targets = match_targets(calib, cuts[0], cuts[1], depth)
     return {
+        **{k: torch.from_numpy(v) for k, v in targets.items()},
         "left": images[0],
         "right": images[1],
         "focal": torch.tensor(focals, dtype=torch.float32),
@@ -96,6 +161,15 @@ class FolderPairs:
                 raise FileNotFoundError(self.root / side / f"{record['id']}.png")
             images.append(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
         return images[0], images[1], record
+
+    def depth(self, index: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The pair's left and right depth maps (``make-data --depth``), or None if it has none."""
+        paths = [
+            self.root / "depth" / side / f"{self.records[index]['id']}.npy" for side in ("left", "right")
+        ]
+        if not all(p.is_file() for p in paths):
+            return None
+        return np.load(paths[0]), np.load(paths[1])
 
 
 class RenderedPairs:
@@ -152,13 +226,15 @@ class TrainingPairs(torch.utils.data.Dataset):
     def __getitem__(self, item: tuple[int, int, int]) -> dict:
         index, size_index, epoch = item
         source = int(np.searchsorted(self.offsets, index, side="right") - 1)
-        left, right, calib = self.sources[source][index - int(self.offsets[source])]
+        local = index - int(self.offsets[source])
+        left, right, calib = self.sources[source][local]
+        depth = self.sources[source].depth(local) if hasattr(self.sources[source], "depth") else None
         if (
             self.grey_share > 0
             and np.random.default_rng([self.seed, epoch, index]).random() < self.grey_share
         ):
             left, right = to_grey(left), to_grey(right)
-        sample = training_sample(left, right, calib, self.sizes[size_index])
+        sample = training_sample(left, right, calib, self.sizes[size_index], depth)
         if self.sharpness_share > 0:
             rng = np.random.default_rng([self.seed, epoch, index, 1])  # apart from the grey draw
             if rng.random() < self.sharpness_share:

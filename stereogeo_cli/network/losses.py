@@ -29,6 +29,18 @@ default_conf = {
     "scale_beta": 0.05,  # the same for log(|T_pred| / |T_true|)
     "epipolar_weight": 0.0,  # robust Sampson distance of the pose head's soft matches to the true epipolars
     "epipolar_scale": 0.03,  # its scale, in units of half the short side (about 3 px at 224)
+    # With depth maps (make-data --depth): each left cell's soft match against its true right position
+    # (robust, as the epipolar loss, which cannot see a match sliding along its epipolar line) ...
+    "match_weight": 0.0,
+    "match_scale": 0.03,
+    # ... and each cell's vote against log |T| − log |its true parallax| (smooth L1 of the log), where that
+    # parallax (true position minus a point at infinity's) is at least ``vote_min_parallax``.
+    "vote_weight": 0.0,
+    "vote_min_parallax": 0.02,
+    "vote_beta": 0.1,
+    # The head's point at infinity against the rotation's true one (mean over the cells; smooth L1).
+    "infinity_weight": 0.0,
+    "infinity_beta": 0.01,
 }
 
 
@@ -141,6 +153,32 @@ def epipolar_loss(
     return torch.log1p(distance2 / (half_short * scale) ** 2).mean()
 
 
+def match_losses(out: dict, batch: dict, conf: dict) -> dict[str, torch.Tensor]:
+    """The pose head's losses against the true correspondences (:func:`network.data.match_targets`):
+    ``match`` and ``vote`` where depth made them valid, ``infinity`` for every pair with a pose; only the
+    terms whose weight is not 0."""
+    losses: dict[str, torch.Tensor] = {}
+    pose = batch["has_pose"]
+    if conf["infinity_weight"] > 0 and pose.any():
+        true_shift = (batch["infinity_xy"] - out["pose_match_left"]).mean(1)[pose]  # [B' x 2]
+        losses["infinity"] = F.smooth_l1_loss(
+            out["pose_infinity"][pose], true_shift, beta=conf["infinity_beta"], reduction="sum"
+        ) / (2 * len(true_shift))
+    valid = batch["match_valid"]
+    if conf["match_weight"] > 0 and valid.any():
+        d2 = ((out["pose_match_right"] - batch["match_xy"]) ** 2).sum(-1)[valid]
+        losses["match"] = torch.log1p(d2 / conf["match_scale"] ** 2).mean()
+    if conf["vote_weight"] > 0:
+        parallax = (batch["match_xy"] - batch["infinity_xy"]).norm(dim=-1)  # [B x N]
+        usable = valid & batch["has_translation"][:, None] & (parallax >= conf["vote_min_parallax"])
+        if usable.any():
+            log_length = torch.log(batch["T"].norm(dim=-1).clamp_min(1e-3))[:, None].expand_as(parallax)
+            target = (log_length - torch.log(parallax + 1e-3))[usable]
+            vote = out["pose_vote"][..., 0][usable]
+            losses["vote"] = F.smooth_l1_loss(vote, target, beta=conf["vote_beta"])
+    return losses
+
+
 def compute_losses(out: dict, batch: dict, conf: dict | None = None, with_refiner: bool = True) -> dict:
     """All loss terms (scalars) and ``total``, for model outputs ``out`` on a training ``batch``."""
     conf = {**default_conf, **(conf or {})}
@@ -201,8 +239,11 @@ def compute_losses(out: dict, batch: dict, conf: dict | None = None, with_refine
             out["pose_match_left"][trans], out["pose_match_right"][trans], batch["focal"][trans],
             batch["R"][trans], batch["T"][trans], min(height, width) / 2, conf["epipolar_scale"],
         )  # fmt: skip
+    if "pose_infinity" in out and "infinity_xy" in batch:
+        losses.update(match_losses(out, batch, conf))
     weights = {
-        "epipolar": conf["epipolar_weight"],
+        "epipolar": conf["epipolar_weight"], "match": conf["match_weight"], "vote": conf["vote_weight"],
+        "infinity": conf["infinity_weight"],
         "up": conf["up_weight"], "latitude": conf["latitude_weight"], "confidence": conf["confidence_weight"],
         "camera": conf["camera_weight"], "rotation": conf["rotation_weight"],
         "translation": conf["translation_weight"],

@@ -333,33 +333,15 @@ class PoseHead(nn.Module):
         feat_right: torch.Tensor,
         fine_left: torch.Tensor | None = None,
         fine_right: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+    ) -> tuple[torch.Tensor, torch.Tensor, tuple[torch.Tensor, torch.Tensor], dict[str, torch.Tensor]]:
         """Stride-16 (and stride-8) and deepest features of both views → quaternion [B x 4] (w, x, y, z),
         unit, w ≥ 0; translation [B x 3] in metres; the soft matches (left cell, expected right position)
-        [B x N_left x 2] each, in the cells' normalised coordinates (for the epipolar loss)."""
-        q, t, matches, _ = self._run(match_left, match_right, feat_left, feat_right, fine_left, fine_right)
-        return q, t, matches
-
-    def scale_terms(self, *features: torch.Tensor | None) -> dict[str, torch.Tensor]:
-        """What the length of T is made of (``scale_votes`` heads; the arguments are :meth:`forward`'s), per
-        left cell [B x N_left x k]: ``left_xy``, ``right_xy`` (its soft match), ``log_parallax`` (log length
-        of the displacement minus ``infinity`` [B x 2], the learned displacement of a point at infinity),
-        ``vote`` (the learned log-depth term), ``vote_logit`` and ``weight`` (the softmax over the cells of
-        the logit plus ``vote_parallax_gain`` times the log parallax); all in the cells' normalised
-        coordinates. For diagnosis (benchmarks/pose_scale.py)."""
-        if not self.scale_votes:
-            raise ValueError("this pose head regresses the length of T; it has no votes")
-        return self._run(*features)[3]
-
-    def _run(
-        self,
-        match_left: torch.Tensor,
-        match_right: torch.Tensor,
-        feat_left: torch.Tensor,
-        feat_right: torch.Tensor,
-        fine_left: torch.Tensor | None = None,
-        fine_right: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor, tuple[torch.Tensor, torch.Tensor], dict[str, torch.Tensor]]:
+        [B x N_left x 2] each, in the cells' normalised coordinates (for the epipolar and match losses); and
+        what the length of T is made of (``scale_votes`` heads; empty otherwise), per left cell
+        [B x N_left x k]: ``left_xy``, ``right_xy`` (its soft match), ``log_parallax`` (log length of the
+        displacement minus ``infinity`` [B x 2], the learned displacement of a point at infinity), ``vote``
+        (the learned log-depth term), ``vote_logit`` and ``weight`` (the softmax over the cells of the logit
+        plus ``vote_parallax_gain`` times the log parallax); all in the cells' normalised coordinates."""
         reduced_left, reduced_right = self.reduce(feat_left), self.reduce(feat_right)
         desc_left, context_left = self.match_features(fine_left, match_left, reduced_left)
         desc_right, _ = self.match_features(fine_right, match_right, reduced_right)
@@ -489,12 +471,15 @@ class StereoGeoNet(nn.Module):
         return fields, (feats[16], feats[0], feats[8])
 
     def pose_scale_terms(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The pose head's :meth:`PoseHead.scale_terms` for a stereo pair (inputs as :meth:`forward`)."""
+        """What the pose head's length of T is made of, for a stereo pair (inputs as :meth:`forward`): the
+        terms :meth:`PoseHead.forward` returns last. For diagnosis (benchmarks/pose_scale.py)."""
         _, feat_left = self.forward_view(left)
         _, feat_right = self.forward_view(right)
-        return self.pose_head.scale_terms(
+        if not self.pose_head.scale_votes:
+            raise ValueError("this pose head regresses the length of T; it has no votes")
+        return self.pose_head(
             feat_left[0], feat_right[0], feat_left[1], feat_right[1], feat_left[2], feat_right[2]
-        )
+        )[3]
 
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
         """Stereo pair → fields of each view and the relative pose.
@@ -515,7 +500,7 @@ class StereoGeoNet(nn.Module):
         if self.training and share != 1.0:  # x·s + stop_grad(x)·(1 − s): the same values, a scaled gradient
             feat_left = tuple(f * share + f.detach() * (1.0 - share) for f in feat_left)
             feat_right = tuple(f * share + f.detach() * (1.0 - share) for f in feat_right)
-        quaternion, translation, matches = self.pose_head(
+        quaternion, translation, matches, terms = self.pose_head(
             feat_left[0], feat_right[0], feat_left[1], feat_right[1], feat_left[2], feat_right[2]
         )
         out = {f"left_{k}": v for k, v in fields_left.items()}
@@ -524,6 +509,8 @@ class StereoGeoNet(nn.Module):
         out["translation"] = translation
         if self.training:  # for the epipolar loss
             out["pose_match_left"], out["pose_match_right"] = matches
+            if terms:  # for the losses on the point at infinity and the votes
+                out["pose_infinity"], out["pose_vote"] = terms["infinity"], terms["vote"]
         return out
 
 
