@@ -369,6 +369,9 @@ def test_match_losses_vanish_at_the_truth_and_grow_away_from_it(depth_pair):
     moved = {k: v + 0.05 for k, v in truth.items()}
     for name, value in match_losses(moved, batch, conf).items():
         assert float(value) > 1e-3, name
+    coarse = {**truth, "pose_match_left": left_xy[:, ::4]}  # a stride-16 head's cells
+    with pytest.raises(ValueError, match="stride-8"):
+        match_losses(coarse, batch, conf)
     no_depth = training_sample(s.left, s.right, s.calib, (224, 160))
     assert not no_depth["match_valid"].any()
     assert torch.equal(no_depth["infinity_xy"], one["infinity_xy"])

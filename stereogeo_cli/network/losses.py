@@ -9,6 +9,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from stereogeo_cli.network.data import MATCH_STRIDE
 from stereogeo_cli.network.model import OUTPUT_STRIDE
 from stereogeo_cli.network.runtime import cell_pixel_coordinates
 from stereogeo_cli.refine import initial_estimate
@@ -158,6 +159,11 @@ def match_losses(out: dict, batch: dict, conf: dict) -> dict[str, torch.Tensor]:
     ``match`` and ``vote`` where depth made them valid, ``infinity`` for every pair with a pose; only the
     terms whose weight is not 0."""
     losses: dict[str, torch.Tensor] = {}
+    if out["pose_match_left"].shape != batch["infinity_xy"].shape:
+        raise ValueError(
+            f"the match targets are for stride-{MATCH_STRIDE} cells; this pose head matches "
+            f"{out['pose_match_left'].shape[1]} cells, the targets have {batch['infinity_xy'].shape[1]}"
+        )
     pose = batch["has_pose"]
     if conf["infinity_weight"] > 0 and pose.any():
         true_shift = (batch["infinity_xy"] - out["pose_match_left"]).mean(1)[pose]  # [B' x 2]

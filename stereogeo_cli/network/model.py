@@ -473,10 +473,10 @@ class StereoGeoNet(nn.Module):
     def pose_scale_terms(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
         """What the pose head's length of T is made of, for a stereo pair (inputs as :meth:`forward`): the
         terms :meth:`PoseHead.forward` returns last. For diagnosis (benchmarks/pose_scale.py)."""
-        _, feat_left = self.forward_view(left)
-        _, feat_right = self.forward_view(right)
         if not self.pose_head.scale_votes:
             raise ValueError("this pose head regresses the length of T; it has no votes")
+        _, feat_left = self.forward_view(left)
+        _, feat_right = self.forward_view(right)
         return self.pose_head(
             feat_left[0], feat_right[0], feat_left[1], feat_right[1], feat_left[2], feat_right[2]
         )[3]
