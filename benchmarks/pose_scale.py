@@ -31,15 +31,19 @@ import torch
 
 from stereogeo_cli.evaluate import read_dataset
 from stereogeo_cli.geometry.camera import apply_resize_crop, resize_crop_for_network
+from stereogeo_cli.geometry.epipolar import fundamental_matrix, symmetric_epipolar_distance
 from stereogeo_cli.io import load_image
 from stereogeo_cli.network.checkpoint import load_checkpoint
+from stereogeo_cli.network.data import MATCH_STRIDE, match_targets
 
-MATCH_STRIDE = 8
 EPIPOLAR_PX = 1.0
 
 
-def skew(t: np.ndarray) -> np.ndarray:
-    return np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+def true_fundamental(record: dict) -> np.ndarray:
+    K = [np.array(record[side]["K"], dtype=float) for side in ("left", "right")]
+    return fundamental_matrix(
+        K[0], K[1], np.array(record["R"], dtype=float), np.array(record["T"], dtype=float)
+    )
 
 
 def sift_parallax(left: np.ndarray, right: np.ndarray, record: dict, sift) -> tuple[np.ndarray, np.ndarray]:
@@ -56,47 +60,24 @@ def sift_parallax(left: np.ndarray, right: np.ndarray, record: dict, sift) -> tu
         return none
     p1 = np.float64([k1[g.queryIdx].pt for g in good])
     p2 = np.float64([k2[g.trainIdx].pt for g in good])
-    K1, K2 = np.array(record["left"]["K"]), np.array(record["right"]["K"])
-    R, T = np.array(record["R"]), np.array(record["T"])
-    F = np.linalg.inv(K2).T @ skew(T) @ R @ np.linalg.inv(K1)
-    x1, x2 = np.c_[p1, np.ones(len(p1))], np.c_[p2, np.ones(len(p2))]
-    lines = x1 @ F.T
-    on_line = np.abs(np.sum(x2 * lines, 1)) / np.hypot(lines[:, 0], lines[:, 1]) < EPIPOLAR_PX
+    on_line = symmetric_epipolar_distance(true_fundamental(record), p1, p2) < EPIPOLAR_PX
     if on_line.sum() < 8:
         return none
-    at_infinity = x1 @ (K2 @ R @ np.linalg.inv(K1)).T
+    K1, K2, R = np.array(record["left"]["K"]), np.array(record["right"]["K"]), np.array(record["R"])
+    at_infinity = np.c_[p1, np.ones(len(p1))] @ (K2 @ R @ np.linalg.inv(K1)).T
     at_infinity = at_infinity[:, :2] / at_infinity[:, 2:]
     return p1[on_line], np.linalg.norm(p2 - at_infinity, axis=1)[on_line]
 
 
 def epipolar_distance(terms: dict, record: dict, rc_left, rc_right) -> np.ndarray:
-    """Distance (network-input px) of each left cell's soft match to its true epipolar line."""
+    """Distance (network-input px) of each left cell's soft match to its true epipolar lines."""
 
-    def pixels(xy, rc):
+    def pixels(xy, rc):  # cell coordinates → pixels of the uncut image
         width, height = rc.out_size
         return rc.points_to_input(xy * (min(width, height) / 2) + np.array([width / 2, height / 2]))
 
-    K1, K2 = np.array(record["left"]["K"]), np.array(record["right"]["K"])
-    F = np.linalg.inv(K2).T @ skew(np.array(record["T"])) @ np.array(record["R"]) @ np.linalg.inv(K1)
-    x1 = np.c_[pixels(terms["left_xy"], rc_left), np.ones(len(terms["left_xy"]))]
-    x2 = np.c_[pixels(terms["right_xy"], rc_right), np.ones(len(terms["right_xy"]))]
-    lines = x1 @ F.T
-    return np.abs(np.sum(x2 * lines, 1)) / np.hypot(lines[:, 0], lines[:, 1]) * rc_right.scale
-
-
-def true_infinity(record: dict, rc_left, rc_right) -> np.ndarray:
-    """Displacement [N x 2] of a point at infinity seen by each stride-8 left cell (the true rotation), in
-    units of half the right network input's short side (the head's cell coordinates)."""
-    width, height = rc_left.out_size
-    cols, rows = np.meshgrid(np.arange(width // MATCH_STRIDE), np.arange(height // MATCH_STRIDE))
-    centre = (MATCH_STRIDE - 1) / 2
-    cells = np.stack([cols * MATCH_STRIDE + centre, rows * MATCH_STRIDE + centre], -1).reshape(-1, 2)
-    left_px = rc_left.points_to_input(cells)
-    K1, K2, R = np.array(record["left"]["K"]), np.array(record["right"]["K"]), np.array(record["R"])
-    seen = np.c_[left_px, np.ones(len(left_px))] @ (K2 @ R @ np.linalg.inv(K1)).T
-    right_cells = rc_right.points_to_output(seen[:, :2] / seen[:, 2:])
-    # cell coordinates are relative to each input's centre; the two inputs have the same size here
-    return (right_cells - cells) / (min(rc_right.out_size) / 2)
+    left, right = pixels(terms["left_xy"], rc_left), pixels(terms["right_xy"], rc_right)
+    return symmetric_epipolar_distance(true_fundamental(record), left, right) * rc_right.scale
 
 
 def main() -> None:
@@ -121,7 +102,7 @@ def main() -> None:
         images = [load_image(Path(args.dataset) / side / f"{record['id']}.png") for side in ("left", "right")]
         rcs = [resize_crop_for_network(im.shape[1], im.shape[0], short_side, 32) for im in images]
         if rcs[0].out_size != rcs[1].out_size:
-            continue  # the true-infinity term assumes one input size
+            continue  # the cell coordinates of the two views differ
         tensors = [
             torch.from_numpy(apply_resize_crop(im, rc).transpose(2, 0, 1)[None].astype(np.float32) / 255.0)
             for im, rc in zip(images, rcs, strict=True)
@@ -130,7 +111,8 @@ def main() -> None:
             terms = {k: v[0].numpy().astype(float) for k, v in model.pose_scale_terms(*tensors).items()}
         weight, vote = terms["weight"][:, 0], terms["vote"][:, 0]
         log_length = float(np.sum(weight * (vote + terms["log_parallax"][:, 0])))
-        inf_true = true_infinity(record, *rcs)
+        # the true rotation's displacement of a point at infinity, per cell (the cuts have one size)
+        inf_true = match_targets(record, *rcs)["infinity_xy"] - terms["left_xy"]
         displacement = terms["right_xy"] - terms["left_xy"]
         log_par_true_inf = np.log(np.linalg.norm(displacement - inf_true, axis=1) + 1e-3)
         logits = terms["vote_logit"][:, 0] + gain * log_par_true_inf

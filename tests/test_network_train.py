@@ -12,6 +12,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from stereogeo_cli.geometry.epipolar import fundamental_matrix  # noqa: E402
 from stereogeo_cli.network.data import (  # noqa: E402
     FolderPairs,
     SizedBatches,
@@ -334,11 +335,9 @@ def test_match_targets_land_on_the_same_surface(depth_pair):
     assert np.median(here) < 0.02 and np.median(here) < 0.3 * np.median(off)
     # on the true epipolar lines (the cut keeps a centred pinhole: K from the cut's focal)
     f_left, f_right = sample["focal"].numpy()
-    K1 = np.array([[f_left, 0, 112], [0, f_left, 80], [0, 0, 1.0]]) @ np.diag([1, 1, 1.0])
+    K1 = np.array([[f_left, 0, 112], [0, f_left, 80], [0, 0, 1.0]])
     K2 = np.array([[f_right, 0, 112], [0, f_right, 80], [0, 0, 1.0]])
-    R, T = sample["R"].numpy().astype(float), sample["T"].numpy().astype(float)
-    tx = np.array([[0, -T[2], T[1]], [T[2], 0, -T[0]], [-T[1], T[0], 0]])
-    F = np.linalg.inv(K2).T @ tx @ R @ np.linalg.inv(K1)
+    F = fundamental_matrix(K1, K2, sample["R"].numpy().astype(float), sample["T"].numpy().astype(float))
     lines = np.c_[left_px - 0.5, np.ones(len(left_px))] @ F.T
     d = np.abs(np.sum(np.c_[right_px - 0.5, np.ones(len(left_px))] * lines, 1)) / np.hypot(*lines[:, :2].T)
     assert np.percentile(d, 95) < 0.05

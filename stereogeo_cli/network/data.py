@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from stereogeo_cli.geometry import ResizeCrop, apply_resize_crop
+from stereogeo_cli.network.runtime import cell_pixel_coordinates
 
 TRAIN_SIZES = ((256, 192), (320, 192), (224, 224), (192, 256))  # (width, height): 4:3, 5:3, 1:1, 3:4
 
@@ -59,9 +60,7 @@ def match_targets(calib: dict, rc_left: ResizeCrop, rc_right: ResizeCrop, depth=
     (the right depth agrees within 3 %; a sky cell must see sky). Cells in row-major order, as the head's.
     """
     width, height = rc_left.out_size
-    cols, rows = np.meshgrid(np.arange(width // stride), np.arange(height // stride))
-    centre = (stride - 1) / 2
-    cells = np.stack([cols * stride + centre, rows * stride + centre], -1).reshape(-1, 2).astype(float)
+    cells = np.stack(cell_pixel_coordinates(height // stride, width // stride, stride), -1).reshape(-1, 2)
     half = min(width, height) / 2
     offset = np.array([width / 2, height / 2])
     n = len(cells)
