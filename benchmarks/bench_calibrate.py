@@ -7,8 +7,11 @@
   over ``--runs`` after two warm-up runs, with the pipeline's own ``timing_ms`` breakdown.
 - Cold: ``stereogeo calibrate LEFT RIGHT --json -o DIR`` in a fresh process, wall clock until it exits
   (interpreter start, imports, session creation, one calibration, files written); median of ``--cold-runs``.
-- Batch: ``stereogeo batch-calibrate`` over ``--pairs`` rendered 640x480 pairs, wall clock of the whole
-  command (start-up included) for each ``--workers`` value; pairs/s = pairs / wall time.
+- Batch: ``stereogeo batch-calibrate`` over the first ``--pairs`` rendered 640x480 pairs (one or more
+  counts, e.g. ``20,60``), wall clock of the whole command (start-up included) for each ``--workers``
+  value; pairs/s = pairs / wall time. With two or more counts, a straight line through (pairs, wall time)
+  splits the time into a fixed start-up (interpreter, workers, network sessions) and a marginal rate.
+- ``--runs 0`` or ``--cold-runs 0`` skips that part.
 
 The pairs are rendered with ``stereogeo make-data --size 480 --aspects 4:3 --portrait-share 0`` into a
 temporary folder (or ``--data``, reused if it holds enough pairs). The load average is printed with the
@@ -94,8 +97,19 @@ def cold(model: Path, left: Path, right: Path, runs: int) -> dict:
     return {"median_ms": round(statistics.median(times), 1), "runs_ms": [round(t) for t in times]}
 
 
+def subset(folder: Path, pairs: int, into: Path) -> Path:
+    """A folder of links to the first ``pairs`` pairs of ``folder`` (left/, right/)."""
+    names = sorted(p.name for p in (folder / "left").glob("*.png"))[:pairs]
+    for side in ("left", "right"):
+        (into / side).mkdir(parents=True)
+        for name in names:
+            (into / side / name).symlink_to((folder / side / name).resolve())
+    return into
+
+
 def batch(model: Path, folder: Path, pairs: int, workers: int, threads: int) -> dict:
-    with tempfile.TemporaryDirectory() as out:
+    with tempfile.TemporaryDirectory() as out, tempfile.TemporaryDirectory() as links:
+        folder = subset(folder, pairs, Path(links) / "pairs")
         cmd = [*stereogeo_command(), "batch-calibrate", str(folder), "-o", out, "--model", str(model),
                "--workers", str(workers), "--threads", str(threads)]  # fmt: skip
         start = time.perf_counter()
@@ -115,26 +129,42 @@ def main() -> None:
     parser.add_argument("--data", type=Path, help="folder of rendered pairs (made if needed; default: temp)")
     parser.add_argument("--runs", type=int, default=10, help="warm runs")
     parser.add_argument("--cold-runs", type=int, default=3)
-    parser.add_argument("--pairs", type=int, default=20, help="pairs for the batch throughput")
+    parser.add_argument("--pairs", default="20", help="comma-separated pair counts for the batch throughput")
     parser.add_argument("--workers", default="1,2", help="comma-separated --workers values for the batch")
     parser.add_argument("--threads", type=int, default=0, help="ONNX Runtime threads (0: one per core)")
     args = parser.parse_args()
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before NumPy loads, as the stereogeo command does
     if not args.model.is_file():
         raise SystemExit(f"no model at {args.model}: pass --model (e.g. an exported checkpoint)")
     temp = None if args.data else tempfile.TemporaryDirectory()
     folder = args.data or Path(temp.name) / "pairs"
+    counts = [int(n) for n in args.pairs.split(",")]
     try:
-        print(f"rendering {args.pairs} pairs into {folder} ...", file=sys.stderr)
-        render(folder, args.pairs)
+        print(f"rendering {max(counts)} pairs into {folder} ...", file=sys.stderr)
+        render(folder, max(counts))
         left, right = folder / "left" / "000000.png", folder / "right" / "000000.png"
         results = {"before": load(), "model": str(args.model)}
-        results["warm"] = warm(args.model, left, right, args.runs, args.threads)
-        print(json.dumps({"warm": results["warm"]}), file=sys.stderr)
-        results["cold"] = cold(args.model, left, right, args.cold_runs)
-        print(json.dumps({"cold": results["cold"]}), file=sys.stderr)
-        results["batch"] = [
-            batch(args.model, folder, args.pairs, int(w), args.threads) for w in args.workers.split(",")
-        ]
+        if args.runs > 0:
+            results["warm"] = warm(args.model, left, right, args.runs, args.threads)
+            print(json.dumps({"warm": results["warm"]}), file=sys.stderr)
+        if args.cold_runs > 0:
+            results["cold"] = cold(args.model, left, right, args.cold_runs)
+            print(json.dumps({"cold": results["cold"]}), file=sys.stderr)
+        results["batch"] = []
+        for w in args.workers.split(","):
+            runs = [batch(args.model, folder, n, int(w), args.threads) for n in counts]
+            results["batch"].extend(runs)
+            if len(counts) > 1:
+                slope, start_up = statistics.linear_regression(
+                    [r["pairs"] for r in runs], [r["wall_s"] for r in runs]
+                )
+                results["batch"].append(
+                    {
+                        "workers": int(w),
+                        "start_up_s": round(start_up, 2),
+                        "marginal_pairs_per_s": round(1 / slope, 2),
+                    }
+                )
         results["after"] = load()
     finally:
         if temp is not None:

@@ -213,3 +213,40 @@ def test_the_sign_of_t_comes_from_parallax_and_from_the_pose_head_in_a_far_scene
         assert pose.t_direction @ T > 0.99 * np.linalg.norm(T)  # parallax wins over a wrong head
         pose = fuse_relative_pose(far, K, K, prior_R=R, prior_t=prior_sign * T)
         assert np.sign(pose.t_direction @ T) == prior_sign  # no parallax: the head's sign
+
+
+def test_the_joint_refinement_jacobian_is_the_derivative_of_its_residuals():
+    """The analytic Jacobian (Sampson errors through F, gravity, rotation and direction priors, focal
+    ratio) and the k columns equal central differences of the residuals along the LM's own steps, away
+    from the truth (a 3° rotation prior residual, a moved direction, a focal ratio, k inside its bounds)."""
+    from stereogeo_cli.fuse.pose import _PoseProblem, _Priors
+    from stereogeo_cli.fuse.pose import default_conf as fuse_conf
+
+    rng = np.random.default_rng(47)
+    K_left, K_right = intrinsic_matrix(500, 640, 480), intrinsic_matrix(540, 640, 480)
+    R, T = _rig(rng)
+    m = _matches(rng, K_left, K_right, R, T, count=120, outliers=0.1)
+    g_left = gravity_from_roll_pitch(0.1, -0.2)
+    priors = _Priors(
+        g_left, R @ g_left + 0.01, np.radians(1.0), rotation_from_axis_angle([0.03, -0.04, 0.02]) @ R,
+        T + rng.normal(0, 0.05, 3), np.radians(5.0), np.radians(15.0),
+    )  # fmt: skip
+    problem = _PoseProblem(
+        m.left, m.right, K_left, K_right, 0.7, priors, (0.4, 0.6, 0.05), ((-0.5, 0.1), (-0.5, 0.1)), fuse_conf
+    )
+    t = T / np.linalg.norm(T) + np.array([0.0, 0.05, -0.03])
+    state = (rotation_from_axis_angle([0.01, 0.02, -0.01]) @ R, t / np.linalg.norm(t), 0.03, (-0.05, 0.02))
+    r, J = problem.jacobian(state)
+    assert np.allclose(r, problem.residuals(state))
+    h = 1e-6
+    numeric = np.stack(
+        [
+            (problem.residuals(problem.moved(state, h * e)) - problem.residuals(problem.moved(state, -h * e)))
+            / (2 * h)
+            for e in np.eye(problem.n_params)
+        ],
+        axis=1,
+    )
+    assert J.shape == numeric.shape == (120 + 3 + 3 + 3 + 1 + 2, 8)
+    scale = np.abs(numeric).max(axis=0)
+    assert np.all(np.abs(J - numeric) <= 1e-5 * scale + 1e-7), np.abs(J - numeric).max(axis=0) / scale

@@ -35,6 +35,29 @@ def _grey_and_scale(image: np.ndarray, max_side: int) -> tuple[np.ndarray, float
     return grey, scale
 
 
+def mutual_ratio_matches(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool = True) -> np.ndarray:
+    """Index pairs [M x 2] (i in a, j in b) of descriptors [N x D] whose nearest neighbour in b passes Lowe's
+    ratio test against the second nearest (L2) and, with ``mutual``, is also a's nearest from b's side.
+
+    One matrix of squared distances serves both directions (what a brute-force matcher's k=2 search one
+    way and 1-NN search the other way compute twice).
+    """
+    a, b = np.asarray(a, dtype=np.float32), np.asarray(b, dtype=np.float32)
+    if len(a) < 1 or len(b) < 2:
+        return np.zeros((0, 2), dtype=int)
+    d2 = np.einsum("ij,ij->i", a, a)[:, None] + np.einsum("ij,ij->i", b, b)[None, :] - 2.0 * (a @ b.T)
+    np.maximum(d2, 0.0, out=d2)
+    two = np.argpartition(d2, 1, axis=1)[:, :2]
+    first, second = d2[np.arange(len(a)), two[:, 0]], d2[np.arange(len(a)), two[:, 1]]
+    swap = second < first
+    best = np.where(swap, two[:, 1], two[:, 0])
+    d_best, d_next = np.minimum(first, second), np.maximum(first, second)
+    keep = np.sqrt(d_best) < ratio * np.sqrt(d_next)
+    if mutual:
+        keep &= np.argmin(d2, axis=0)[best] == np.arange(len(a))
+    return np.column_stack([np.nonzero(keep)[0], best[keep]])
+
+
 def match_features(left: np.ndarray, right: np.ndarray, conf: dict | None = None) -> Matches:
     """SIFT matches between two images (H x W x 3 uint8 RGB, or grey), in original pixel coordinates."""
     conf = {**default_conf, **(conf or {})}
@@ -49,20 +72,9 @@ def match_features(left: np.ndarray, right: np.ndarray, conf: dict | None = None
     empty = Matches(np.zeros((0, 2)), np.zeros((0, 2)))
     if descriptors[0] is None or descriptors[1] is None or len(keypoints[0]) < 2 or len(keypoints[1]) < 2:
         return empty
-    matcher = cv2.BFMatcher(cv2.NORM_L2)
-    forward = matcher.knnMatch(descriptors[0], descriptors[1], k=2)
-    pairs = [
-        (m.queryIdx, m.trainIdx)
-        for m, n in (p for p in forward if len(p) == 2)
-        if m.distance < conf["ratio"] * n.distance
-    ]
-    if conf["mutual"] and pairs:
-        backward = matcher.match(descriptors[1], descriptors[0])
-        best_back = {m.queryIdx: m.trainIdx for m in backward}
-        pairs = [(i, j) for i, j in pairs if best_back.get(j) == i]
-    if not pairs:
+    idx = mutual_ratio_matches(descriptors[0], descriptors[1], conf["ratio"], conf["mutual"])
+    if len(idx) == 0:
         return empty
-    idx = np.array(pairs)
     pts = []
     for side, scale in enumerate(scales):
         xy = np.array([keypoints[side][k].pt for k in idx[:, side]], dtype=float)

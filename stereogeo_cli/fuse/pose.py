@@ -12,14 +12,19 @@ import numpy as np
 
 from stereogeo_cli.fuse.matches import Matches
 from stereogeo_cli.geometry.camera import corner_radius, division_limit, undistort_division
-from stereogeo_cli.geometry.epipolar import fundamental_matrix
+from stereogeo_cli.geometry.epipolar import essential_matrix, fundamental_matrix
 from stereogeo_cli.geometry.gravity import (
     couple_rotation_to_gravity,
     gravity_angle,
     retract_on_sphere,
     tangent_basis,
 )
-from stereogeo_cli.geometry.rotation import axis_angle_from_rotation, rotation_error, rotation_from_axis_angle
+from stereogeo_cli.geometry.rotation import (
+    axis_angle_from_rotation,
+    rotation_error,
+    rotation_from_axis_angle,
+    skew,
+)
 
 default_conf = {
     "min_matches": 20,  # fewer matches than this: the pose head and gravity alone
@@ -73,13 +78,30 @@ def _normalise(points: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 def sampson_errors(F: np.ndarray, left: np.ndarray, right: np.ndarray) -> np.ndarray:
     """Signed Sampson errors [N] in pixels of matches left, right [N x 2] under F (x_rightᵀ F x_left = 0)."""
+    return _sampson(F, left, right)[0]
+
+
+def _sampson(F: np.ndarray, left: np.ndarray, right: np.ndarray, gradient: bool = False):
+    """Sampson errors s = a / √D [N] (a = x_rᵀ F x_l; D = the squared first two entries of F x_l and
+    Fᵀ x_r), and with ``gradient`` their derivatives [N x 9] with respect to F's entries (row-major)."""
     pl = np.column_stack([left, np.ones(len(left))])
     pr = np.column_stack([right, np.ones(len(right))])
     Fl = pl @ F.T
     Ftr = pr @ F
     algebraic = np.sum(pr * Fl, axis=1)
-    denom = Fl[:, 0] ** 2 + Fl[:, 1] ** 2 + Ftr[:, 0] ** 2 + Ftr[:, 1] ** 2
-    return algebraic / np.sqrt(np.maximum(denom, 1e-300))
+    denom = np.maximum(Fl[:, 0] ** 2 + Fl[:, 1] ** 2 + Ftr[:, 0] ** 2 + Ftr[:, 1] ** 2, 1e-300)
+    root = np.sqrt(denom)
+    errors = algebraic / root
+    if not gradient:
+        return errors, None
+    # ∂a/∂F_ij = r_i l_j;  ∂D/∂F_ij = 2 (F l)_i l_j [i < 2] + 2 (Fᵀ r)_j r_i [j < 2]
+    da = pr[:, :, None] * pl[:, None, :]
+    Fl2, Ftr2 = Fl.copy(), Ftr.copy()
+    Fl2[:, 2] = 0.0
+    Ftr2[:, 2] = 0.0
+    dD = 2.0 * (Fl2[:, :, None] * pl[:, None, :] + pr[:, :, None] * Ftr2[:, None, :])
+    grad = da / root[:, None, None] - 0.5 * (errors / denom)[:, None, None] * dD
+    return errors, grad.reshape(len(errors), 9)
 
 
 def essential_pose(matches: Matches, K_left: np.ndarray, K_right: np.ndarray, conf: dict | None = None):
@@ -121,6 +143,17 @@ def _gravity_error_deg(R, gravity_left, gravity_right) -> float:
 
 def _rotation_residual(R: np.ndarray, R_ref: np.ndarray) -> np.ndarray:
     return axis_angle_from_rotation(R @ R_ref.T)
+
+
+def _log_jacobian(phi: np.ndarray) -> np.ndarray:
+    """∂ log(exp([δ]ₓ)·Q) / ∂δ at δ = 0 for Q = exp([φ]ₓ): the inverse left Jacobian of SO(3),
+    I − ½[φ]ₓ + (1/θ² − (1 + cos θ) / (2θ sin θ))·[φ]ₓ²."""
+    theta = float(np.linalg.norm(phi))
+    P = skew(phi)
+    if theta < 1e-6:
+        return np.eye(3) - 0.5 * P + P @ P / 12.0
+    c = 1.0 / theta**2 - (1.0 + np.cos(theta)) / (2.0 * theta * np.sin(theta))
+    return np.eye(3) - 0.5 * P + c * (P @ P)
 
 
 def fuse_relative_pose(
@@ -340,11 +373,127 @@ def _scaled(K: np.ndarray, log_scale: float) -> np.ndarray:
     return K
 
 
+class _PoseProblem:
+    """The joint refinement's residuals and Jacobian over a state (R, t, d, k).
+
+    Residuals: the robust Sampson errors in units of the match noise, then the priors in units of their
+    sigmas (gravity coupling, pose-head rotation and direction, the focal ratio d, the two k). A step is
+    (rotation update [3], direction tangent [2], with ``split`` d, with ``k_bounds`` the two k).
+    """
+
+    eps = 1e-7  # central-difference step of the k columns
+
+    def __init__(self, left, right, K_left, K_right, noise_px, priors: _Priors, split, k_bounds, conf):
+        self.left, self.right, self.K = left, right, (K_left, K_right)
+        self.noise_px, self.priors, self.split, self.k_bounds = noise_px, priors, split, k_bounds
+        self.sigma_k = conf["distortion_sigma"]
+        self.n_base = 5 if split is None else 6
+        self.n_params = self.n_base + (0 if k_bounds is None else 2)
+        self.n_data = len(left)
+        self.huber_k = conf["sampson_scale_px"] / noise_px  # Huber threshold in units of the noise
+        # F = M_rᵀ E M_l with M = K⁻¹ of the scaled K: diag(e⁻ˢ, e⁻ˢ, 1)·K⁻¹ (the principal point stays)
+        self.inverse = (np.linalg.inv(K_left), np.linalg.inv(K_right))
+        self.undistorted: dict = {}
+
+    def log_scales(self, d: float) -> tuple[float, float]:
+        return (0.0, 0.0) if self.split is None else (self.split[0] * d, -self.split[1] * d)
+
+    def inverse_K(self, side: int, log_scale: float) -> np.ndarray:
+        return np.diag([np.exp(-log_scale), np.exp(-log_scale), 1.0]) @ self.inverse[side]
+
+    def F(self, R, t, d) -> np.ndarray:
+        s_l, s_r = self.log_scales(d)
+        return self.inverse_K(1, s_r).T @ essential_matrix(R, t) @ self.inverse_K(0, s_l)
+
+    def points(self, side: int, k_side: float) -> np.ndarray:
+        """The matches of one side undistorted with k (cached: most evaluations share k)."""
+        key = (side, k_side)
+        if key not in self.undistorted:
+            self.undistorted[key] = undistort_division((self.left, self.right)[side], self.K[side], k_side)
+        return self.undistorted[key]
+
+    def moved(self, state, delta):
+        R, t, d, k = state
+        if self.k_bounds is not None:
+            k = tuple(float(np.clip(k[i] + delta[self.n_base + i], *self.k_bounds[i])) for i in (0, 1))
+        return (
+            rotation_from_axis_angle(delta[:3]) @ R,
+            retract_on_sphere(t, delta[3:5], tangent_basis(t)),
+            d + (delta[5] if self.split is not None else 0.0),
+            k,
+        )
+
+    def prior_residuals(self, state) -> np.ndarray:
+        R, t, d, k = state
+        ratio = [] if self.split is None else [d / self.split[2]]
+        k_prior = [] if self.k_bounds is None else [k[0] / self.sigma_k, k[1] / self.sigma_k]
+        return np.concatenate([self.priors.residuals(R, t), ratio, k_prior])
+
+    def residuals(self, state) -> np.ndarray:
+        R, t, d, k = state
+        sampson = _sampson(self.F(R, t, d), self.points(0, k[0]), self.points(1, k[1]))[0]
+        return np.concatenate([sampson / self.noise_px, self.prior_residuals(state)])
+
+    def jacobian(self, state) -> tuple[np.ndarray, np.ndarray]:
+        """The residuals and their Jacobian with respect to :meth:`moved`'s step at 0. The Sampson errors'
+        derivatives with respect to F chain with F's analytic ones: a rotation step δ moves R to
+        exp([δ]ₓ)R, so ∂E/∂δ_i = [t]ₓ[e_i]ₓR; a direction step moves t along its tangent basis b_j, so
+        ∂E/∂δ_j = [b_j]ₓR. A camera's k moves its points only (central differences, within its bounds)."""
+        R, t, d, k = state
+        priors, split, n_data, noise = self.priors, self.split, self.n_data, self.noise_px
+        s_l, s_r = self.log_scales(d)
+        M_l, M_r = self.inverse_K(0, s_l), self.inverse_K(1, s_r)
+        E = essential_matrix(R, t)
+        F = M_r.T @ E @ M_l
+        sampson, dS = _sampson(F, self.points(0, k[0]), self.points(1, k[1]), gradient=True)
+        r = np.concatenate([sampson / noise, self.prior_residuals(state)])
+        basis = tangent_basis(t)
+        dE = [skew(t) @ skew(e) @ R for e in np.eye(3)] + [skew(basis[:, j]) @ R for j in range(2)]
+        dF = [M_r.T @ dE_i @ M_l for dE_i in dE]
+        if split is not None:  # ∂M_l/∂d = −w_l·P·M_l, ∂M_r/∂d = w_r·P·M_r (P = diag(1, 1, 0))
+            P = np.diag([1.0, 1.0, 0.0])
+            dF.append(split[1] * M_r.T @ P @ E @ M_l - split[0] * M_r.T @ E @ P @ M_l)
+        J = np.zeros((len(r), self.n_params))
+        J[:n_data, : self.n_base] = dS @ np.stack([m.ravel() for m in dF], axis=1) / noise
+        row = n_data  # the priors, in the order of _Priors.residuals and prior_residuals
+        if priors.gravity_left is not None:
+            J[row : row + 3, :3] = -skew(R @ priors.gravity_left) / priors.gravity_sigma
+            row += 3
+        if priors.R is not None:
+            J[row : row + 3, :3] = _log_jacobian(_rotation_residual(R, priors.R)) / priors.rotation_sigma
+            row += 3
+        if priors.t is not None:
+            sign = 1.0 if t @ priors.t >= 0 else -1.0
+            J[row : row + 3, 3:5] = sign * basis / priors.direction_sigma
+            row += 3
+        if split is not None:
+            J[row, 5] = 1.0 / split[2]
+            row += 1
+        for i in range(self.n_base, self.n_params):  # a camera's k: its points, and its prior
+            step = np.zeros(self.n_params)
+            step[i] = self.eps
+            k_plus, k_minus = self.moved(state, step)[3], self.moved(state, -step)[3]
+            J[:n_data, i] = (
+                _sampson(F, self.points(0, k_plus[0]), self.points(1, k_plus[1]))[0]
+                - _sampson(F, self.points(0, k_minus[0]), self.points(1, k_minus[1]))[0]
+            ) / (2 * self.eps * noise)
+            side = i - self.n_base
+            J[row + side, i] = (k_plus[side] - k_minus[side]) / (2 * self.eps * self.sigma_k)
+        return r, J
+
+    def weights(self, r: np.ndarray) -> np.ndarray:
+        """Huber weights on the Sampson errors; the priors weigh 1."""
+        w = np.ones_like(r)
+        data_abs = np.abs(r[: self.n_data])
+        w[: self.n_data] = np.where(data_abs <= self.huber_k, 1.0, self.huber_k / np.maximum(data_abs, 1e-12))
+        return w
+
+
 def _refine_pose(R, t, d, k, left, right, K_left, K_right, noise_px, priors: _Priors, split, k_bounds, conf):
     """LM on (rotation update [3], direction tangent [2], with ``split`` the log focal ratio d, with
     ``k_bounds`` the two cameras' distortion k): robust Sampson errors in units of the match noise, plus
     the soft gravity coupling, the pose-head prior, the refiner's focal ratio and the zero-mean distortion
-    prior, in units of their sigmas.
+    prior, in units of their sigmas (:class:`_PoseProblem`).
 
     ``split`` = (w_left, w_right, sigma_d): the left focal is scaled by exp(w_left·d) and the right one
     by exp(-w_right·d), so each camera takes its share of a ratio correction. ``k`` = (k_left, k_right)
@@ -352,64 +501,26 @@ def _refine_pose(R, t, d, k, left, right, K_left, K_right, noise_px, priors: _Pr
     (lower, upper) limits. Returns R, t, d, k, the Gauss–Newton Hessian, the two log focal scales and
     the final robust cost (in units of the noise and the sigmas).
     """
-    n_base = 5 if split is None else 6
-    n_params = n_base + (0 if k_bounds is None else 2)
-    sigma_k = conf["distortion_sigma"]
-
-    def log_scales(d_):
-        return (0.0, 0.0) if split is None else (split[0] * d_, -split[1] * d_)
-
-    def residuals(R_, t_, d_, k_):
-        s_l, s_r = log_scales(d_)
-        F = fundamental_matrix(_scaled(K_left, s_l), _scaled(K_right, s_r), R_, t_)
-        sampson = sampson_errors(
-            F, undistort_division(left, K_left, k_[0]), undistort_division(right, K_right, k_[1])
-        )
-        ratio = [] if split is None else [d_ / split[2]]
-        k_prior = [] if k_bounds is None else [k_[0] / sigma_k, k_[1] / sigma_k]
-        return np.concatenate([sampson / noise_px, priors.residuals(R_, t_), ratio, k_prior])
-
-    def moved(R_, t_, d_, k_, delta):
-        if k_bounds is not None:
-            k_ = tuple(float(np.clip(k_[i] + delta[n_base + i], *k_bounds[i])) for i in (0, 1))
-        return (
-            rotation_from_axis_angle(delta[:3]) @ R_,
-            retract_on_sphere(t_, delta[3:5], tangent_basis(t_)),
-            d_ + (delta[5] if split is not None else 0.0),
-            k_,
-        )
-
-    n_data = len(left)
-    huber_k = conf["sampson_scale_px"] / noise_px  # Huber threshold in units of the noise
-
-    def weights(r):
-        w = np.ones_like(r)
-        data_abs = np.abs(r[:n_data])
-        w[:n_data] = np.where(data_abs <= huber_k, 1.0, huber_k / np.maximum(data_abs, 1e-12))
-        return w
-
-    lam, eps = 1e-3, 1e-7
-    H = np.eye(n_params)
+    problem = _PoseProblem(left, right, K_left, K_right, noise_px, priors, split, k_bounds, conf)
+    state = (R, t, d, k)
+    lam = 1e-3
+    H = np.eye(problem.n_params)
     for _ in range(conf["iterations"]):
-        r = residuals(R, t, d, k)
-        w = weights(r)
-        J = np.empty((len(r), n_params))
-        for i in range(n_params):
-            e = np.zeros(n_params)
-            e[i] = eps
-            J[:, i] = (residuals(*moved(R, t, d, k, e)) - residuals(*moved(R, t, d, k, -e))) / (2 * eps)
+        r, J = problem.jacobian(state)
+        w = problem.weights(r)
         H = J.T @ (J * w[:, None])
         step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), J.T @ (w * r))
-        R_new, t_new, d_new, k_new = moved(R, t, d, k, step)
-        r_new = residuals(R_new, t_new, d_new, k_new)
+        candidate = problem.moved(state, step)
+        r_new = problem.residuals(candidate)
         cost, new_cost = float(np.sum(w * r * r)), float(np.sum(w * r_new * r_new))
         if new_cost < cost:
-            R, t, d, k, lam = R_new, t_new, d_new, k_new, lam * 0.1
+            state, lam = candidate, lam * 0.1
             if cost - new_cost < 1e-6 * cost or np.linalg.norm(step) < 1e-10:
                 break
         else:
             lam *= 10
             if lam > 1e6:
                 break
-    r = residuals(R, t, d, k)
-    return R, t, d, k, H, log_scales(d), float(np.sum(weights(r) * r * r))
+    r = problem.residuals(state)
+    R, t, d, k = state
+    return R, t, d, k, H, problem.log_scales(d), float(np.sum(problem.weights(r) * r * r))
