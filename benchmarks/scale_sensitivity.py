@@ -1,7 +1,7 @@
 """How the calibration depends on the size the network sees: the same pairs at several input short sides.
 
     python benchmarks/scale_sensitivity.py DATASET [DATASET ...] [--sizes 160,192,224,256,288] [--model M]
-        [--by-scene] [--fields-only] [--blur 0,1,2] [--zoom 1,0.7,0.5]
+        [--by-scene] [--fields-only] [--blur 0,1,2] [--zoom 1,0.7,0.5] [--aspect 0,2.2,3.3]
 
 Every pair of each dataset (the project's layout with ground truth) is calibrated by the full pipeline
 with the network's input short side overridden (the shipped rule is the model's ``input_short_side``).
@@ -23,6 +23,10 @@ width and height (no resampling; the ground truth's principal point moves with t
 and gravity stay), so every real set also gives views of known, narrower fields of view. A model that reads
 the focal length from geometry reads the cut views' narrower lenses; one that falls back on a prior reads
 every cut much like the whole image.
+
+``--aspect`` cuts each (zoomed) image further to a wide strip of that width / height ratio, the full width
+kept and the height cut about the centre (0: no cut): the shape of a driving rig's frames (KITTI's are
+1242 x 375, 3.3:1), never seen in training (4:3 to 5:3, and portrait).
 
 ``--by-scene`` splits a rendered dataset by its records' ``scene`` (room, street, …, and ``panorama`` for
 the crops of real panoramas): the panorama crops are real photographs, the renders are not.
@@ -62,12 +66,13 @@ class _Blurred:
         return self.calibrator.fields_only(self._blur(left), self._blur(right))
 
 
-def _zoomed(folder: Path, zoom: float, into: Path) -> Path:
-    """A copy of a dataset with every image cut to its central ``zoom`` (width and height), ground truth
-    moved along: the principal point shifts by the cut's corner; focal length, gravity and pose stay."""
-    if zoom == 1:
+def _zoomed(folder: Path, zoom: float, into: Path, aspect: float = 0.0) -> Path:
+    """A copy of a dataset with every image cut to its central ``zoom`` (width and height), and then, with
+    ``aspect`` > 0, to at most that width / height ratio (the height cut); the ground truth moved along: the
+    principal point shifts by the cut's corner; focal length, gravity and pose stay."""
+    if zoom == 1 and aspect == 0:
         return folder
-    out = into / f"{folder.name}@zoom{zoom:g}"
+    out = into / f"{folder.name}@zoom{zoom:g}@aspect{aspect:g}"
     records = []
     for record in read_dataset(folder):
         for side in ("left", "right"):
@@ -75,6 +80,8 @@ def _zoomed(folder: Path, zoom: float, into: Path) -> Path:
             image = cv2.imread(str(folder / side / f"{record['id']}.png"), cv2.IMREAD_UNCHANGED)
             height, width = image.shape[:2]
             cut_w, cut_h = round(width * zoom), round(height * zoom)
+            if aspect > 0:
+                cut_h = min(cut_h, round(cut_w / aspect))
             x0, y0 = (width - cut_w) // 2, (height - cut_h) // 2
             cv2.imwrite(str(out / side / f"{record['id']}.png"), image[y0 : y0 + cut_h, x0 : x0 + cut_w])
             K = np.asarray(record[side]["K"], dtype=float)
@@ -126,22 +133,26 @@ def main() -> None:
     parser.add_argument("--fields-only", action="store_true", help="the network's fields alone, no matches")
     parser.add_argument("--blur", default="0", help="Gaussian blurs, sigma in network-input pixels")
     parser.add_argument("--zoom", default="1", help="central cuts, share of width and height (0 < z <= 1)")
+    parser.add_argument("--aspect", default="0", help="wide strips, width / height (0: the image as it is)")
     parser.add_argument("--json", type=Path, help="also write the rows to this JSON file")
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
     blurs = [float(b) for b in args.blur.split(",")]
     zooms = [float(z) for z in args.zoom.split(",")]
+    aspects = [float(a) for a in args.aspect.split(",")]
     if not all(0 < z <= 1 for z in zooms):
         parser.error("--zoom takes shares of the image in (0, 1]")
+    if not all(a == 0 or a >= 1 for a in aspects):
+        parser.error("--aspect takes width / height ratios of 1 or more (0: no cut)")
     rows = []
     calibrator = Calibrator(args.model, threads=args.threads)
     shipped = calibrator.network.short_side
     print(f"model {calibrator.model_path.name}, shipped input short side {shipped}", file=sys.stderr)
-    print("| dataset | zoom | short side | blur | vFoV | vFoV bias | roll | pitch | R |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| dataset | zoom | aspect | short side | blur | vFoV | vFoV bias | roll | pitch | R |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     scratch = tempfile.TemporaryDirectory(prefix="stereogeo-zoom-")
-    for folder, zoom in ((folder, zoom) for folder in args.datasets for zoom in zooms):
-        cut = _zoomed(folder, zoom, Path(scratch.name))
+    for folder, zoom, aspect in ((f, z, a) for f in args.datasets for z in zooms for a in aspects):
+        cut = _zoomed(folder, zoom, Path(scratch.name), aspect)
         for size, blur in ((size, blur) for size in sizes for blur in blurs):
             calibrator.network.short_side = size
             blurred = _Blurred(calibrator, blur)
@@ -151,7 +162,8 @@ def main() -> None:
                 pairs = evaluate_dataset(cut, blurred)["pairs"]
             for name, group in _groups(cut, pairs, args.by_scene).items():
                 name = name.replace(cut.name, folder.name, 1)
-                row = {"dataset": name, "zoom": zoom, "short_side": size, "blur": blur, "pairs": len(group)}
+                row = {"dataset": name, "zoom": zoom, "aspect": aspect, "short_side": size, "blur": blur}
+                row["pairs"] = len(group)
                 for key in ("vfov", "roll", "pitch"):
                     row[key] = _median(group, f"{key}_error_deg")
                 row["vfov_bias"] = _median(group, "vfov_bias_deg")
@@ -166,7 +178,10 @@ def main() -> None:
                 ]
                 mark = " (shipped)" if size == shipped else ""
                 print(
-                    f"| {name} | {zoom:g} | {size}{mark} | {blur:g} | " + " | ".join(cells) + " |", flush=True
+                    f"| {name} | {zoom:g} | {aspect:g} | {size}{mark} | {blur:g} | "
+                    + " | ".join(cells)
+                    + " |",
+                    flush=True,
                 )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
