@@ -145,6 +145,13 @@ def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False,
                 row["baseline_error_rel"] = abs(float(np.linalg.norm(c.T) / np.linalg.norm(T)) - 1.0)
                 row["direction_error_deg"] = _direction_error_deg(c.T, T)
             row["pose_source"] = result.pose.source
+            # the pose's errors in units of its reported 1-sigmas (the fusion's, or the pose head's)
+            row["rotation_z"] = _z(row["rotation_error_deg"], result.pose.sigma_rotation_deg)
+            if row.get("direction_error_deg") is not None:
+                row["direction_z"] = _z(row["direction_error_deg"], result.pose.sigma_direction_deg)
+                scale_sigma = result.report().get("pose", {}).get("sigma_baseline_rel")
+                if scale_sigma is not None:
+                    row["baseline_z"] = _z(row["baseline_error_rel"], scale_sigma)
             if baselines:
                 for label, matcher in BASELINES.items():
                     errors = _baseline_pose(left, right, record, matcher)
@@ -185,6 +192,11 @@ def _summaries(rows: list[dict], total: int, failed: int = 0) -> dict:
         if z.size:
             # honest sigmas hold 68 % of the errors within 1 sigma; the 68th percentile of error/sigma is
             # the factor that would make them so
+            metrics[f"{name}_sigma"] = {"within_1_sigma": float(np.mean(z <= 1)),
+                                        "scale_for_68": float(np.percentile(z, 68.27))}  # fmt: skip
+    for name in ("rotation", "direction", "baseline"):
+        z = np.array(column(f"{name}_z"))
+        if z.size:
             metrics[f"{name}_sigma"] = {"within_1_sigma": float(np.mean(z <= 1)),
                                         "scale_for_68": float(np.percentile(z, 68.27))}  # fmt: skip
     bias = column("left_vfov_bias_deg") + column("right_vfov_bias_deg")

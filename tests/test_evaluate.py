@@ -71,6 +71,12 @@ def test_evaluate_json_reports_the_papers_metrics(dataset, onnx_model):
             assert abs(row[f"{view}_vfov_bias_deg"]) == pytest.approx(row[f"{view}_vfov_error_deg"])
     biases = [row[f"{v}_vfov_bias_deg"] for row in report["pairs"] for v in ("left", "right")]
     assert metrics["vfov_bias_deg"]["median"] == pytest.approx(np.median(biases))
+    # the pose's errors in units of its reported sigmas, and their share within 1 sigma
+    for name in ("rotation", "direction"):
+        z = [row[f"{name}_z"] for row in report["pairs"]]
+        assert all(v > 0 for v in z)
+        assert metrics[f"{name}_sigma"]["within_1_sigma"] == pytest.approx(np.mean(np.array(z) <= 1))
+        assert metrics[f"{name}_sigma"]["scale_for_68"] == pytest.approx(np.percentile(z, 68.27))
     # a sanity bound for the baseline's conventions (a flipped R or T, or a wrong K, gives tens of degrees);
     # three small renders are too few for an accuracy figure
     assert metrics["sift+essential_rotation_error_deg"]["median"] < 10.0
