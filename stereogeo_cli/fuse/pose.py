@@ -43,6 +43,10 @@ default_conf = {
     "distortion_max_pincushion": 0.0,  # largest pincushion stretch k·r² at the image corner (0: barrel only)
     "distortion_min_inliers": 50,  # fewer inliers than this: no distortion fitted
     "distortion_min_gain": 20.0,  # robust cost (noise² units) k must save to be kept (χ², 2 dof: p 5e-5)
+    # 1-sigma of a raw camera's principal point from the image centre, per axis, as a share of the image's
+    # width / height: the pose's sigmas take it in (it moves R by the two cameras' difference over f). The
+    # two raw rigs of the developer data have theirs 1.4-2.9 % apart per axis (RMS 2.1 %, so 1.5 % each).
+    "principal_point_sigma": 0.015,
 }
 
 
@@ -287,6 +291,16 @@ def fuse_relative_pose(
             best, radial = fit(best.R, best.t, best.d, best.mask, k_bounds), True
     R, t, scales, k, H, inlier_mask = best.R, best.t, best.scales, best.k, best.H, best.mask
     cov = np.linalg.inv(H)
+    # What the matches cannot see widens the pose's covariance without moving it: the two cameras' common
+    # focal scale (the fields' sigma; held focal lengths have none) and, for a raw camera (a lens fitted),
+    # the principal points, which the camera model puts at the image centres.
+    var = [None if (v is None or not np.isfinite(v) or v <= 0) else float(v) for v in focal_sigma_rel]
+    considered = {"focal": 0.0 if None in var else 0.5 * (var[0] + var[1])}
+    if radial:
+        considered["principal_point"] = conf["principal_point_sigma"]
+    cov = cov + _consider_covariance(
+        best, matches, K_left, K_right, noise, priors, split, k_bounds if radial else None, conf, considered
+    )
     distortion, sigma_distortion = (0.0, 0.0), (float("inf"), float("inf"))
     if radial:
         # k in the refined K's normalised coordinates: r' = r·f/f', so k' = k·(f'/f)²
@@ -302,6 +316,55 @@ def fuse_relative_pose(
         gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
         notes=notes,
     )  # fmt: skip
+
+
+def _consider_covariance(best, matches, K_left, K_right, noise, priors, split, k_bounds, conf, sigmas):
+    """The covariance the pose inherits from parameters held at a guess (a "consider" covariance):
+    S·Σc·Sᵀ with S = −H⁻¹·JᵀW·J_c the estimate's sensitivity to them at the solution.
+
+    ``sigmas``: ``focal`` (1-sigma of the log of both focal lengths together) and, if present,
+    ``principal_point`` (1-sigma of each camera's principal point along each axis, as a share of the image's
+    width and height, from its centre).
+    """
+
+    def problem(K_l, K_r):
+        return _PoseProblem(
+            matches.left[best.mask], matches.right[best.mask], K_l, K_r, noise, priors, split, k_bounds, conf
+        )
+
+    state = (best.R, best.t, best.d, best.k)
+    base = problem(K_left, K_right)
+    r, J = base.jacobian(state)
+    w = base.weights(r)
+    H = J.T @ (J * w[:, None])
+    moves, sigma = [], []  # (K_left, K_right) moved by ± a step, and the 1-sigma in units of the step
+    if sigmas.get("focal", 0.0) > 0:
+        step = 1e-4
+        moves.append(lambda h: (_scaled(K_left, h * step), _scaled(K_right, h * step)))
+        sigma.append(sigmas["focal"] / step)
+    if sigmas.get("principal_point", 0.0) > 0:
+        for side in (0, 1):
+            K = (K_left, K_right)[side]
+            for axis in (0, 1):
+                size = 2.0 * K[axis, 2]  # the image's width or height (principal point at the centre)
+
+                def move(h, side=side, axis=axis):
+                    Ks = [K_left.copy(), K_right.copy()]
+                    Ks[side][axis, 2] += h * 0.01
+                    return Ks[0], Ks[1]
+
+                moves.append(move)
+                sigma.append(sigmas["principal_point"] * size / 0.01)
+    if not moves:
+        return np.zeros_like(H)
+    J_c = np.stack(
+        [(problem(*m(1.0)).residuals(state) - problem(*m(-1.0)).residuals(state)) / 2.0 for m in moves], 1
+    )
+    try:
+        S = -np.linalg.solve(H, J.T @ (w[:, None] * J_c))
+    except np.linalg.LinAlgError:
+        return np.zeros_like(H)
+    return S @ np.diag(np.square(sigma)) @ S.T
 
 
 @dataclass
