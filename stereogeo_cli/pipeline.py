@@ -300,6 +300,8 @@ class Calibrator:
                     "sigma_direction_deg": _finite(pose.sigma_direction_deg),
                     "gravity_error_deg": pose.gravity_error_deg,
                     "rotation_deg": float(np.degrees(rotation_angle(pose.R))),
+                    # the two focal lengths held equal: the matches could not tell their ratio from 1
+                    "equal_focals": pose.equal_focals,
                     # the fitted radial distortion: division-model k per camera (left, right) and its sigma
                     "distortion_k": [float(k) for k in pose.distortion],
                     "sigma_distortion_k": [_finite(s) for s in pose.sigma_distortion],

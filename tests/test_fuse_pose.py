@@ -123,6 +123,7 @@ def test_focal_ratio_is_refined_with_the_pose():
         fixed.append(rotation_error(a.R, R))
         refined.append(rotation_error(b.R, R))
         assert a.focal_scale == (1.0, 1.0)
+        assert not b.equal_focals  # 12 % apart: the matches show the ratio
     assert np.median(ratio_errors) < 0.01
     assert np.median(refined) < np.median(fixed)
 
@@ -232,7 +233,15 @@ def test_the_joint_refinement_jacobian_is_the_derivative_of_its_residuals():
         T + rng.normal(0, 0.05, 3), np.radians(5.0), np.radians(15.0),
     )  # fmt: skip
     problem = _PoseProblem(
-        m.left, m.right, K_left, K_right, 0.7, priors, (0.4, 0.6, 0.05), ((-0.5, 0.1), (-0.5, 0.1)), fuse_conf
+        m.left,
+        m.right,
+        K_left,
+        K_right,
+        0.7,
+        priors,
+        (0.4, 0.6, 0.05, 0.01),
+        ((-0.5, 0.1), (-0.5, 0.1)),
+        fuse_conf,
     )
     t = T / np.linalg.norm(T) + np.array([0.0, 0.05, -0.03])
     state = (rotation_from_axis_angle([0.01, 0.02, -0.01]) @ R, t / np.linalg.norm(t), 0.03, (-0.05, 0.02))
@@ -289,3 +298,25 @@ def test_a_raw_cameras_principal_points_widen_the_rotation_sigma_only():
     assert np.allclose(wide.R, exact.R) and np.allclose(wide.t_direction, exact.t_direction)
     assert wide.sigma_rotation_deg > 3 * exact.sigma_rotation_deg
     assert wide.sigma_direction_deg >= exact.sigma_direction_deg
+
+
+def test_identical_cameras_are_held_to_one_focal_length():
+    """Two identical cameras read 3 % apart by the fields: on a rig with a forward component the matches
+    cannot tell that ratio from 1 (it trades against t's forward part), so both focal lengths are held
+    equal, and the translation direction comes out better than with the ratio free."""
+    rng = np.random.default_rng(49)
+    K = intrinsic_matrix(500, 640, 480)
+    held, free = [], []
+    for _ in range(10):
+        R, _ = _rig(rng)
+        T = np.array([-0.3, 0.02, 0.1])
+        m = _matches(rng, K, K, R, T, noise_px=0.7, outliers=0.1)
+        K_l, K_r = intrinsic_matrix(500 * 1.03, 640, 480), intrinsic_matrix(500 / 1.03, 640, 480)
+        kw = {"prior_R": R, "prior_t": T, "focal_sigma_rel": (0.1, 0.1)}
+        a = fuse_relative_pose(m, K_l, K_r, **kw)
+        b = fuse_relative_pose(m, K_l, K_r, **kw, conf={"equal_focal_max_gain": 0.0})
+        assert a.equal_focals and not b.equal_focals
+        assert 500 * 1.03 * a.focal_scale[0] == pytest.approx(500 / 1.03 * a.focal_scale[1], rel=1e-6)
+        held.append(_direction_error_deg(a.t_direction, T))
+        free.append(_direction_error_deg(b.t_direction, T))
+    assert np.median(held) < 0.5 * np.median(free), (held, free)

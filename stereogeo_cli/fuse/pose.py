@@ -43,6 +43,9 @@ default_conf = {
     "distortion_max_pincushion": 0.0,  # largest pincushion stretch k·r² at the image corner (0: barrel only)
     "distortion_min_inliers": 50,  # fewer inliers than this: no distortion fitted
     "distortion_min_gain": 20.0,  # robust cost (noise² units) k must save to be kept (χ², 2 dof: p 5e-5)
+    # robust cost (noise² units) a free focal ratio must save over equal focal lengths to be kept (χ², 1 dof:
+    # p 1.5e-3); 0: never hold them equal
+    "equal_focal_max_gain": 10.0,
     # 1-sigma of a raw camera's principal point from the image centre, per axis, as a share of the image's
     # width / height: the pose's sigmas take it in (it moves R by the two cameras' difference over f). The
     # two raw rigs of the developer data have theirs 1.4-2.9 % apart per axis (RMS 2.1 %, so 1.5 % each).
@@ -63,6 +66,9 @@ class RelativePose:
     sigma_direction_deg: float = float("inf")
     gravity_error_deg: float | None = None  # angle between R·g_left and g_right (the fields' gravity)
     focal_scale: tuple[float, float] = (1.0, 1.0)  # refined focal / given focal, per camera
+    equal_focals: bool = (
+        False  # the two focal lengths were held equal (the matches could not tell them apart)
+    )
     # radial distortion per camera: the division-model k (undistorted = distorted / (1 + k·r²)) in the
     # normalised coordinates of the refined K, and its 1-sigma (0 and inf: not fitted)
     distortion: tuple[float, float] = (0.0, 0.0)
@@ -219,7 +225,7 @@ def fuse_relative_pose(
     # Only the ratio of the two focal lengths is refined with the pose: the matches fix it well on any rig,
     # while the absolute focal is unobservable on near-parallel rigs and absorbs lens distortion.
     var = [0.0 if (v is None or not np.isfinite(v) or v <= 0) else float(v) ** 2 for v in focal_sigma_rel]
-    split = None if sum(var) <= 0 else (var[0] / sum(var), var[1] / sum(var), float(np.sqrt(sum(var))))
+    split = None if sum(var) <= 0 else (var[0] / sum(var), var[1] / sum(var), float(np.sqrt(sum(var))), 0.0)
     # Radial distortion bends the epipolar lines (on a stereo rig: vertical disparity growing towards the
     # corners), which no pinhole pose explains; one division-model k per camera, held near 0 by a prior
     # where the matches do not show it. Bounded below so the model does not fold over inside the image,
@@ -244,7 +250,7 @@ def fuse_relative_pose(
         if rotation_error(R_p, R0) > np.radians(0.5) or np.degrees(gravity_angle(t_p, t0)) > 5.0:
             starts.append((R_p, t_p))  # a second start only where it could lead elsewhere
 
-    def fit(R, t, d, mask, bounds) -> _Fit:
+    def fit(R, t, d, mask, bounds, split=split) -> _Fit:
         """Two rounds: refine on the inliers, re-select the inliers among all matches, refine again."""
         k = (0.0, 0.0)
         for _ in range(2):
@@ -266,7 +272,7 @@ def fuse_relative_pose(
             t = t if t @ prior_t >= 0 else -t
         elif share < 0.5:
             t = -t
-        focal_terms = 0.0 if split is None else (d / split[2]) ** 2
+        focal_terms = 0.0 if split is None else ((d - split[3]) / split[2]) ** 2
         k_terms = (k[0] ** 2 + k[1] ** 2) / conf["distortion_sigma"] ** 2
         score = float(
             np.sum(np.minimum((errors / noise) ** 2, 9.0)) + np.sum(priors.residuals(R, t) ** 2)
@@ -289,6 +295,18 @@ def fuse_relative_pose(
         radial_cost = _refine_pose(R, t, d, (0.0, 0.0), *on, k_bounds, conf)[-1]
         if pinhole_cost - radial_cost > conf["distortion_min_gain"]:
             best, radial = fit(best.R, best.t, best.d, best.mask, k_bounds), True
+    # Most rigs pair two identical cameras. Where the matches cannot tell the focal ratio from 1 (it trades
+    # against a forward component of t on a rig looking ahead), both focal lengths are held equal: the same
+    # nested test as the lens', one parameter fewer. The equal pose pays the fields' own evidence of a ratio.
+    # (Only for two images of one size: focal lengths in pixels of different sizes are not alike.)
+    equal_focals, used_split = False, split
+    same_size = np.allclose(K_left[:2, 2], K_right[:2, 2])
+    if split is not None and same_size and conf["equal_focal_max_gain"] > 0:
+        d_equal = float(np.log(K_right[1, 1] / K_left[1, 1]))  # f_l·exp(w_l·d) = f_r·exp(-w_r·d)
+        held = (split[0], split[1], 1e-6, d_equal)
+        equal = fit(best.R, best.t, d_equal, best.mask, k_bounds if radial else None, held)
+        if equal.score + (d_equal / split[2]) ** 2 - best.score < conf["equal_focal_max_gain"]:
+            best, equal_focals, used_split = equal, True, held
     R, t, scales, k, H, inlier_mask = best.R, best.t, best.scales, best.k, best.H, best.mask
     cov = np.linalg.inv(H)
     # What the matches cannot see widens the pose's covariance without moving it: the two cameras' common
@@ -299,7 +317,16 @@ def fuse_relative_pose(
     if radial:
         considered["principal_point"] = conf["principal_point_sigma"]
     cov = cov + _consider_covariance(
-        best, matches, K_left, K_right, noise, priors, split, k_bounds if radial else None, conf, considered
+        best,
+        matches,
+        K_left,
+        K_right,
+        noise,
+        priors,
+        used_split,
+        k_bounds if radial else None,
+        conf,
+        considered,
     )
     distortion, sigma_distortion = (0.0, 0.0), (float("inf"), float("inf"))
     if radial:
@@ -311,7 +338,7 @@ def fuse_relative_pose(
         R=R, t_direction=t, source="matches", matches_found=found, inliers=int(inlier_mask.sum()),
         sigma_rotation_deg=float(np.degrees(np.sqrt(np.trace(cov[:3, :3])))),
         sigma_direction_deg=float(np.degrees(np.sqrt(np.trace(cov[3:5, 3:5])))),
-        focal_scale=(float(np.exp(scales[0])), float(np.exp(scales[1]))),
+        focal_scale=(float(np.exp(scales[0])), float(np.exp(scales[1]))), equal_focals=equal_focals,
         distortion=distortion, sigma_distortion=sigma_distortion,
         gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
         notes=notes,
@@ -488,7 +515,7 @@ class _PoseProblem:
 
     def prior_residuals(self, state) -> np.ndarray:
         R, t, d, k = state
-        ratio = [] if self.split is None else [d / self.split[2]]
+        ratio = [] if self.split is None else [(d - self.split[3]) / self.split[2]]
         k_prior = [] if self.k_bounds is None else [k[0] / self.sigma_k, k[1] / self.sigma_k]
         return np.concatenate([self.priors.residuals(R, t), ratio, k_prior])
 
