@@ -298,3 +298,17 @@ def test_a_lens_is_fitted_where_the_matches_show_it_and_never_with_pinhole(
     assert written.exit_code == 0, written.output
     fs = cv2.FileStorage(str(tmp_path / "out" / "intrinsics.yml"), cv2.FILE_STORAGE_READ)
     np.testing.assert_allclose(fs.getNode("D1").mat().ravel(), lens["left"]["dist"], rtol=1e-6)
+
+
+def test_known_focal_lengths_are_never_held_equal(pair, onnx_model):
+    """``pose.equal_focals`` is in the report; with the focal lengths given (here 5 % apart) the fusion has no
+    ratio to hold, and each camera keeps its own."""
+    result = invoke(
+        "calibrate", *pair, "--model", onnx_model, "--json", "--focal-left", "300", "--focal-right", "315"
+    )
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    assert report["pose"]["equal_focals"] is False
+    assert report["left"]["focal_px"] == pytest.approx(300) and report["right"]["focal_px"] == pytest.approx(
+        315
+    )
