@@ -44,9 +44,8 @@ import os
 import re
 import sys
 import time
-from collections import deque
 from collections.abc import Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -373,66 +372,32 @@ class _Progress:
 
 
 def _run_pass(entries: list[PairEntry], job: PairJob, workers: int, calibrator, progress: _Progress):
-    """Outcomes of ``entries`` in their order, whatever the order in which they finish.
-
-    With ``workers`` > 1 this process is one of them: it calibrates pairs with its own session
-    (``calibrator(threads)``) while ``workers - 1`` spawned processes start up and then take pairs too,
-    each kept two pairs ahead. (Left idle, this process would leave a core unused for the half second a
-    spawned worker needs to import and load the network.)
-    """
+    """Outcomes of ``entries`` in their order, whatever the order in which they finish."""
     outcomes: list[PairOutcome | None] = [None] * len(entries)
     if workers <= 1 or len(entries) <= 1:
         for i, entry in enumerate(entries):
             outcomes[i] = calibrate_pair(calibrator(), entry, job)
             progress.finished(outcomes[i])
         return outcomes
-    import cv2
-
     total = job.threads if job.threads > 0 else (os.cpu_count() or 1)
     per_worker = max(1, total // workers)
     job = PairJob(**{**job.__dict__, "threads": per_worker})
-    spawned = min(workers, len(entries)) - 1
-    waiting = deque(range(len(entries)))
-    futures: dict = {}
-
-    def record(i: int, outcome: PairOutcome) -> None:
-        if outcome.fatal:
-            raise StereoGeoError(outcome.error)
-        outcomes[i] = outcome
-        progress.finished(outcome)
-
-    def top_up(pool) -> None:
-        while waiting and len(futures) < 2 * spawned:
-            i = waiting.popleft()
-            futures[pool.submit(_worker_task, entries[i], job)] = i
-
-    def harvest(block: bool) -> None:
-        done, _ = wait(futures, timeout=None if block else 0, return_when=FIRST_COMPLETED)
-        for future in done:
-            record(futures.pop(future), future.result())
-
-    threads_before = cv2.getNumThreads()
     # spawn: a fresh interpreter per worker (no forked ONNX Runtime / OpenCV thread pools)
     with ProcessPoolExecutor(
-        max_workers=spawned, mp_context=multiprocessing.get_context("spawn"),
+        max_workers=min(workers, len(entries)), mp_context=multiprocessing.get_context("spawn"),
         initializer=_init_worker, initargs=(per_worker,),
     ) as pool:  # fmt: skip
+        futures = {pool.submit(_worker_task, entry, job): i for i, entry in enumerate(entries)}
         try:
-            top_up(pool)  # the workers start while this process loads its own session
-            cv2.setNumThreads(per_worker)
-            local = calibrator(per_worker)
-            while waiting:
-                i = waiting.popleft()
-                record(i, calibrate_pair(local, entries[i], job))
-                harvest(block=False)
-                top_up(pool)
-            while futures:
-                harvest(block=True)
+            for future in as_completed(futures):
+                outcome = future.result()
+                if outcome.fatal:
+                    raise StereoGeoError(outcome.error)
+                outcomes[futures[future]] = outcome
+                progress.finished(outcome)
         except BaseException:
             pool.shutdown(wait=True, cancel_futures=True)
             raise
-        finally:
-            cv2.setNumThreads(threads_before)
     return outcomes
 
 
@@ -729,14 +694,14 @@ def run_batch(
     entries = select_shard(discover_pairs(folder), shard)
     if same_rig and any(e.name == RIG_FOLDER for e in entries):
         raise StereoGeoError(f"--same-rig writes {out_dir / RIG_FOLDER}/, but a pair is named {RIG_FOLDER!r}")
-    calibrators: dict[int, Any] = {}
+    calibrator_cache: list = []
 
-    def calibrator(threads_: int = threads):  # an in-process session, made once (and only when needed)
-        if threads_ not in calibrators:
+    def calibrator():  # the in-process session, made once (and only when needed)
+        if not calibrator_cache:
             from stereogeo_cli.pipeline import Calibrator
 
-            calibrators[threads_] = Calibrator(model, threads=threads_, conf=calibrator_conf(pinhole, lines))
-        return calibrators[threads_]
+            calibrator_cache.append(Calibrator(model, threads=threads, conf=calibrator_conf(pinhole, lines)))
+        return calibrator_cache[0]
 
     if workers <= 1 and any(e.problem is None for e in entries):
         calibrator()  # a bad model fails here, before any pair

@@ -66,9 +66,8 @@ class RelativePose:
     sigma_direction_deg: float = float("inf")
     gravity_error_deg: float | None = None  # angle between R·g_left and g_right (the fields' gravity)
     focal_scale: tuple[float, float] = (1.0, 1.0)  # refined focal / given focal, per camera
-    equal_focals: bool = (
-        False  # the two focal lengths were held equal (the matches could not tell them apart)
-    )
+    # the two focal lengths were held equal (the matches could not tell their ratio from 1)
+    equal_focals: bool = False
     # radial distortion per camera: the division-model k (undistorted = distorted / (1 + k·r²)) in the
     # normalised coordinates of the refined K, and its 1-sigma (0 and inf: not fitted)
     distortion: tuple[float, float] = (0.0, 0.0)
@@ -585,8 +584,9 @@ def _refine_pose(R, t, d, k, left, right, K_left, K_right, noise_px, priors: _Pr
     the soft gravity coupling, the pose-head prior, the refiner's focal ratio and the zero-mean distortion
     prior, in units of their sigmas (:class:`_PoseProblem`).
 
-    ``split`` = (w_left, w_right, sigma_d): the left focal is scaled by exp(w_left·d) and the right one
-    by exp(-w_right·d), so each camera takes its share of a ratio correction. ``k`` = (k_left, k_right)
+    ``split`` = (w_left, w_right, sigma_d, d_0): the left focal is scaled by exp(w_left·d) and the right
+    one by exp(-w_right·d), so each camera takes its share of a ratio correction; the prior on d is d_0 ±
+    sigma_d (0 ± the fields' sigma; a tiny sigma holds d). ``k`` = (k_left, k_right)
     undistorts the matches in the normalised coordinates of the given K_left, K_right; ``k_bounds`` their
     (lower, upper) limits. Returns R, t, d, k, the Gauss–Newton Hessian, the two log focal scales and
     the final robust cost (in units of the noise and the sigmas).
