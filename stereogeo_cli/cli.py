@@ -569,6 +569,18 @@ def _print_evaluation(results: dict) -> None:
             m = metrics[key]
             table.add_row(label, f"{m['median']:.3f}", f"{m['mean']:.3f}", "", "", "")
     console.print(table)
+    names = (("roll", "roll"), ("pitch", "pitch"), ("vfov", "vFoV"), ("rotation", "rotation"),
+             ("direction", "t direction"), ("baseline", "baseline length"))  # fmt: skip
+    shares = [
+        f"{label} {100 * metrics[f'{name}_sigma']['within_1_sigma']:.0f} %"
+        for name, label in names
+        if f"{name}_sigma" in metrics
+    ]
+    if shares:
+        console.print(
+            "errors within the reported 1-sigma (68 % for honest sigmas): " + ", ".join(shares),
+            soft_wrap=True,
+        )
     for reason in results["skipped"]:
         console.print(f"skipped: {reason}")
     for failure in results["failed"]:
