@@ -187,6 +187,8 @@ def _print_summary(result, console) -> None:
         ))  # fmt: skip
     console.print(table)
     pose = report["pose"]
+    if pose.get("equal_focals"):
+        console.print("focal lengths held equal: the matches could not tell the two cameras apart")
     from stereogeo_cli.geometry import axis_angle_from_rotation
 
     rotvec = np.degrees(axis_angle_from_rotation(np.array(report["R"])))
