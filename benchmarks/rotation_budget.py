@@ -26,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stereogeo_cli.evaluate import read_dataset
+from stereogeo_cli.evaluate import read_dataset, undistort_with_lens
 from stereogeo_cli.fuse import Matches, essential_pose, match_features
 from stereogeo_cli.geometry import intrinsic_matrix, rotation_error
 from stereogeo_cli.io import load_image
@@ -39,12 +39,6 @@ ROWS = (
     "stereogeo, true focal",
     "stereogeo",
 )
-
-
-def _undistort_points(points: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    if len(dist) == 0 or len(points) == 0:
-        return points
-    return cv2.undistortPoints(points.reshape(-1, 1, 2), K, dist, P=K).reshape(-1, 2)
 
 
 def _error_deg(R: np.ndarray, record: dict) -> float:
@@ -66,7 +60,7 @@ def budget(folder: Path, calibrator: Calibrator, pinhole: Calibrator) -> dict:
         offsets.append(math.degrees(float(np.linalg.norm(shift[1] - shift[0])) / K[0][1, 1]))
         m = match_features(left, right)
         undistorted = Matches(
-            _undistort_points(m.left, K[0], dist[0]), _undistort_points(m.right, K[1], dist[1])
+            undistort_with_lens(m.left, record["left"]), undistort_with_lens(m.right, record["right"])
         )
         for row, (K_left, K_right) in zip(ROWS[:2], (K, centred), strict=True):
             pose = essential_pose(undistorted, K_left, K_right) if len(undistorted) else None

@@ -60,7 +60,7 @@ def orb_matches(left: np.ndarray, right: np.ndarray, features: int = 5000) -> Ma
     )
 
 
-def _undistort(points: np.ndarray, cam: dict) -> np.ndarray:
+def undistort_with_lens(points: np.ndarray, cam: dict) -> np.ndarray:
     """Pixel points [N x 2] of a camera with OpenCV distortion ``dist`` → undistorted pixels (same K)."""
     if not cam.get("dist") or len(points) == 0:
         return points
@@ -74,7 +74,7 @@ def _baseline_pose(left, right, record, matcher: Callable) -> tuple[float, float
     if len(m) == 0:
         return None
     lk, rk = record["left"], record["right"]
-    undistorted = Matches(_undistort(m.left, lk), _undistort(m.right, rk))
+    undistorted = Matches(undistort_with_lens(m.left, lk), undistort_with_lens(m.right, rk))
     pose = essential_pose(undistorted, np.asarray(lk["K"], dtype=float), np.asarray(rk["K"], dtype=float))
     if pose is None:
         return None
@@ -149,7 +149,7 @@ def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False,
             row["rotation_z"] = _z(row["rotation_error_deg"], result.pose.sigma_rotation_deg)
             if row.get("direction_error_deg") is not None:
                 row["direction_z"] = _z(row["direction_error_deg"], result.pose.sigma_direction_deg)
-                scale_sigma = result.report().get("pose", {}).get("sigma_baseline_rel")
+                scale_sigma = result.calibration.extra_report.get("pose", {}).get("sigma_baseline_rel")
                 if scale_sigma is not None:
                     row["baseline_z"] = _z(row["baseline_error_rel"], scale_sigma)
             if baselines:

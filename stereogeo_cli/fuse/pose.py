@@ -311,8 +311,8 @@ def fuse_relative_pose(
     # What the matches cannot see widens the pose's covariance without moving it: the two cameras' common
     # focal scale (the fields' sigma; held focal lengths have none) and, for a raw camera (a lens fitted),
     # the principal points, which the camera model puts at the image centres.
-    var = [None if (v is None or not np.isfinite(v) or v <= 0) else float(v) for v in focal_sigma_rel]
-    considered = {"focal": 0.0 if None in var else 0.5 * (var[0] + var[1])}
+    known = [v is None or not np.isfinite(v) or v <= 0 for v in focal_sigma_rel]
+    considered = {"focal": 0.0 if any(known) else 0.5 * float(focal_sigma_rel[0] + focal_sigma_rel[1])}
     if radial:
         considered["principal_point"] = conf["principal_point_sigma"]
     cov = cov + _consider_covariance(
@@ -492,7 +492,7 @@ class _PoseProblem:
 
     def F(self, R, t, d) -> np.ndarray:
         s_l, s_r = self.log_scales(d)
-        return self.inverse_K(1, s_r).T @ essential_matrix(R, t) @ self.inverse_K(0, s_l)
+        return fundamental_matrix(_scaled(self.K[0], s_l), _scaled(self.K[1], s_r), R, t)
 
     def points(self, side: int, k_side: float) -> np.ndarray:
         """The matches of one side undistorted with k (cached: most evaluations share k)."""
