@@ -28,6 +28,8 @@ from stereogeo_cli.network.runtime import FieldNetwork, ViewFields
 from stereogeo_cli.refine import CameraFit, parse_sigma_inflation, refine_camera
 from stereogeo_cli.refine.lines import default_conf as lines_conf
 from stereogeo_cli.refine.lines import detect_segments, gravity_with_lines
+from stereogeo_cli.refine.plumb import default_conf as plumb_conf
+from stereogeo_cli.refine.plumb import plumb_line_distortion
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 DEFAULT_MODEL = MODELS_DIR / "stereogeo.onnx"
@@ -51,6 +53,9 @@ default_conf = {
     # vertical line segments set the gravity together with the fields, after the fusion has measured the
     # lens (stereogeo_cli/refine/lines.py, docs/refine.md)
     "lines": {},  # overrides of stereogeo_cli.refine.lines.default_conf ({"enabled": False}: fields alone)
+    # overrides of stereogeo_cli.refine.plumb.default_conf: the lens read from the line segments' straight
+    # edges, a prior on the fusion's distortion (needs the line segments)
+    "plumb": {},
     "match": {},  # overrides of stereogeo_cli.fuse.matches.default_conf
     "fuse": {},  # overrides of stereogeo_cli.fuse.pose.default_conf
     "refine": {},  # overrides of stereogeo_cli.refine.default_conf
@@ -116,6 +121,7 @@ class Calibrator:
             "prior_direction_sigma_deg": self.network.metadata.get("pose_sigma_direction_deg"),
         }
         self.conf["lines"] = {**lines_conf, **self.conf["lines"]}
+        self.conf["plumb"] = {**plumb_conf, **self.conf["plumb"]}
         self.conf["fuse"] = {
             **{k: float(v) for k, v in measured.items() if v is not None},
             **self.conf["fuse"],
@@ -168,6 +174,17 @@ class Calibrator:
         covariance[:2, :] = covariance[:, :2] = 0.0
         covariance[:2, :2] = found.covariance
         return fit.with_gravity(found.gravity_up, covariance), found.segments
+
+    def _plumb_prior(self, segments: np.ndarray, fit: CameraFit) -> tuple[float, float] | None:
+        """The lens the image's straight edges show, as (k, 1-sigma) in the normalised coordinates of the
+        fit's K."""
+        width, height = fit.width, fit.height
+        K = intrinsic_matrix(fit.focal_px, width, height)
+        scale = max(1.0, min(width, height) / self.conf["lines"]["max_short_side"])  # detector → image px
+        lens = plumb_line_distortion(
+            segments, (width, height), (K[0, 2], K[1, 2]), detector_scale=scale, conf=self.conf["plumb"]
+        )
+        return None if lens is None else lens.division_k(K[0, 0])
 
     def fields_only(self, left: np.ndarray, right: np.ndarray) -> tuple[CameraFit, CameraFit]:
         """Each camera's fit from its fields alone (network and refiner; no lines, no matches, no sharing),
@@ -229,6 +246,12 @@ class Calibrator:
                 detect_segments(image, self.conf["lines"]["max_short_side"]) for image in (left, right)
             ]
             timing["lines"] = (time.perf_counter() - tick) * 1e3
+        distortion_prior: list[tuple[float, float] | None] = [None, None]
+        if found_segments is not None and self.conf["plumb"]["enabled"]:
+            tick = time.perf_counter()
+            for side, (segments, fit) in enumerate(zip(found_segments, (fit_left, fit_right), strict=True)):
+                distortion_prior[side] = self._plumb_prior(segments, fit)
+            timing["lines"] += (time.perf_counter() - tick) * 1e3
         matches, timing["matching"] = matching.result()
         tick = time.perf_counter()
         gravity_sigma = math.radians(
@@ -245,6 +268,7 @@ class Calibrator:
                 None if focal_left is not None else fit_left.sigma["focal_px"] / fit_left.focal_px,
                 None if focal_right is not None else fit_right.sigma["focal_px"] / fit_right.focal_px,
             ),
+            distortion_prior=tuple(distortion_prior),
         )  # fmt: skip
         timing["fusion"] = (time.perf_counter() - tick) * 1e3
         warnings.extend(pose.notes)

@@ -176,6 +176,7 @@ def fuse_relative_pose(
     prior_R: np.ndarray | None = None,
     prior_t: np.ndarray | None = None,
     focal_sigma_rel: tuple[float | None, float | None] = (None, None),
+    distortion_prior: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
     conf: dict | None = None,
 ) -> RelativePose:
     """Relative pose from matches, gravity and the pose head, each weighted by its uncertainty.
@@ -189,6 +190,10 @@ def fuse_relative_pose(
         focal_sigma_rel: the relative 1-sigma of each camera's focal length in K (None: known, held).
             The ratio of the two focals is refined with the pose, each camera taking a share of the
             correction in proportion to its variance; ``focal_scale`` in the result says how far each moved.
+        distortion_prior: per camera, a (k, 1-sigma) of its division-model k in the normalised coordinates
+            of its K read from other evidence (the image's straight edges, ``refine/plumb.py``), or None.
+            It weighs in the test of whether a lens is fitted at all (a chi-square of how much better it
+            likes the fitted k than none); the k itself is the matches'.
     Returns:
         A :class:`RelativePose`. With enough matches: the essential-matrix pose refined on its inliers
         (robust Sampson error) with soft gravity coupling (R·g_left = g_right) and the pose head as a
@@ -287,12 +292,14 @@ def fuse_relative_pose(
     # The lens model is chosen by a nested test on the pinhole fit's inliers: re-refined as a pinhole and
     # with the two k free, from the same solution, the robust cost must fall by more than noise would let
     # two extra parameters take (few or clustered matches let k absorb outliers or a scene's ambiguity).
+    # Evidence of the lens from elsewhere (the images' straight edges) counts in the test: the matches of a
+    # short rig may bend too little on their own where the edges show the lens plainly.
     radial = False
     if k_bounds is not None and best.mask.sum() >= conf["distortion_min_inliers"]:
         on = (matches.left[best.mask], matches.right[best.mask], K_left, K_right, noise, priors, split)
         R, t, d, _, _, _, pinhole_cost = _refine_pose(best.R, best.t, best.d, (0.0, 0.0), *on, None, conf)
-        radial_cost = _refine_pose(R, t, d, (0.0, 0.0), *on, k_bounds, conf)[-1]
-        if pinhole_cost - radial_cost > conf["distortion_min_gain"]:
+        _, _, _, k, _, _, radial_cost = _refine_pose(R, t, d, (0.0, 0.0), *on, k_bounds, conf)
+        if pinhole_cost + _lens_evidence(k, distortion_prior) - radial_cost > conf["distortion_min_gain"]:
             best, radial = fit(best.R, best.t, best.d, best.mask, k_bounds), True
     # Most rigs pair two identical cameras. Where the matches cannot tell the focal ratio from 1 (it trades
     # against a forward component of t on a rig looking ahead), both focal lengths are held equal: the same
@@ -342,6 +349,16 @@ def fuse_relative_pose(
         gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
         notes=notes,
     )  # fmt: skip
+
+
+def _lens_evidence(k, distortion_prior) -> float:
+    """How much better other evidence of the lens (per camera (k, 1-sigma) or None) likes the distortion
+    ``k`` than none: the drop of its chi-square from k = 0 to k."""
+    evidence = 0.0
+    for k_side, given in zip(k, distortion_prior, strict=True):
+        if given is not None and np.isfinite(given[1]) and given[1] > 0:
+            evidence += (given[0] ** 2 - (k_side - given[0]) ** 2) / given[1] ** 2
+    return float(evidence)
 
 
 def _consider_covariance(best, matches, K_left, K_right, noise, priors, split, k_bounds, conf, sigmas):
