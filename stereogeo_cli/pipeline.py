@@ -15,10 +15,12 @@ import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.fuse import Matches, RelativePose, fuse_relative_pose, match_features, share_gravity
+from stereogeo_cli.fuse.pose import default_conf as fuse_conf
 from stereogeo_cli.geometry import (
     corner_radius,
     intrinsic_matrix,
     opencv_from_division,
+    principal_point,
     rotation_angle,
     undistort_division,
 )
@@ -28,8 +30,8 @@ from stereogeo_cli.network.runtime import FieldNetwork, ViewFields
 from stereogeo_cli.refine import CameraFit, parse_sigma_inflation, refine_camera
 from stereogeo_cli.refine.lines import default_conf as lines_conf
 from stereogeo_cli.refine.lines import detect_segments, gravity_with_lines
+from stereogeo_cli.refine.plumb import PlumbLens, plumb_line_distortion
 from stereogeo_cli.refine.plumb import default_conf as plumb_conf
-from stereogeo_cli.refine.plumb import plumb_line_distortion
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 DEFAULT_MODEL = MODELS_DIR / "stereogeo.onnx"
@@ -175,16 +177,14 @@ class Calibrator:
         covariance[:2, :2] = found.covariance
         return fit.with_gravity(found.gravity_up, covariance), found.segments
 
-    def _plumb_prior(self, segments: np.ndarray, fit: CameraFit) -> tuple[float, float] | None:
-        """The lens the image's straight edges show, as (k, 1-sigma) in the normalised coordinates of the
-        fit's K."""
+    def _edge_lens(self, segments: np.ndarray, fit: CameraFit) -> PlumbLens | None:
+        """The lens the image's straight edges show (None: too few of them, or they disagree)."""
         width, height = fit.width, fit.height
-        K = intrinsic_matrix(fit.focal_px, width, height)
         scale = max(1.0, min(width, height) / self.conf["lines"]["max_short_side"])  # detector → image px
-        lens = plumb_line_distortion(
-            segments, (width, height), (K[0, 2], K[1, 2]), detector_scale=scale, conf=self.conf["plumb"]
+        centre = principal_point(width, height)
+        return plumb_line_distortion(
+            segments, (width, height), centre, detector_scale=scale, conf=self.conf["plumb"]
         )
-        return None if lens is None else lens.division_k(K[0, 0])
 
     def fields_only(self, left: np.ndarray, right: np.ndarray) -> tuple[CameraFit, CameraFit]:
         """Each camera's fit from its fields alone (network and refiner; no lines, no matches, no sharing),
@@ -246,11 +246,12 @@ class Calibrator:
                 detect_segments(image, self.conf["lines"]["max_short_side"]) for image in (left, right)
             ]
             timing["lines"] = (time.perf_counter() - tick) * 1e3
-        distortion_prior: list[tuple[float, float] | None] = [None, None]
-        if found_segments is not None and self.conf["plumb"]["enabled"]:
+        edge_lens: list[PlumbLens | None] = [None, None]
+        fits_lens = self.conf["fuse"].get("distortion", fuse_conf["distortion"])
+        if found_segments is not None and self.conf["plumb"]["enabled"] and fits_lens:
             tick = time.perf_counter()
             for side, (segments, fit) in enumerate(zip(found_segments, (fit_left, fit_right), strict=True)):
-                distortion_prior[side] = self._plumb_prior(segments, fit)
+                edge_lens[side] = self._edge_lens(segments, fit)
             timing["lines"] += (time.perf_counter() - tick) * 1e3
         matches, timing["matching"] = matching.result()
         tick = time.perf_counter()
@@ -268,7 +269,10 @@ class Calibrator:
                 None if focal_left is not None else fit_left.sigma["focal_px"] / fit_left.focal_px,
                 None if focal_right is not None else fit_right.sigma["focal_px"] / fit_right.focal_px,
             ),
-            distortion_prior=tuple(distortion_prior),
+            distortion_prior=(
+                None if edge_lens[0] is None else edge_lens[0].division_k(fit_left.focal_px),
+                None if edge_lens[1] is None else edge_lens[1].division_k(fit_right.focal_px),
+            ),
         )  # fmt: skip
         timing["fusion"] = (time.perf_counter() - tick) * 1e3
         warnings.extend(pose.notes)
@@ -329,6 +333,16 @@ class Calibrator:
                     # the fitted radial distortion: division-model k per camera (left, right) and its sigma
                     "distortion_k": [float(k) for k in pose.distortion],
                     "sigma_distortion_k": [_finite(s) for s in pose.sigma_distortion],
+                    # the lens each image's straight edges show, in the same units, with its 1-sigma (None:
+                    # too few long edges, or they disagree); it weighed in the choice of a lens
+                    "edge_distortion_k": [
+                        None if lens is None else float(lens.division_k(K[0, 0])[0])
+                        for lens, K in zip(edge_lens, (K_left, K_right), strict=True)
+                    ],
+                    "sigma_edge_distortion_k": [
+                        None if lens is None else float(lens.division_k(K[0, 0])[1])
+                        for lens, K in zip(edge_lens, (K_left, K_right), strict=True)
+                    ],
                     # relative 1-sigma of a learned baseline (the model's validation figure); None when given
                     "sigma_baseline_rel": self._learned_scale_sigma if scale_source == "learned" else None,
                 },

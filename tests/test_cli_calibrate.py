@@ -259,7 +259,8 @@ def test_a_lens_is_fitted_where_the_matches_show_it_and_never_with_pinhole(
     example_pair, onnx_model, tmp_path
 ):
     """The example pair seen through a barrel lens (division model, k = -0.25 at f = 512 px): the default
-    fits a barrel per camera and writes it; ``--pinhole`` writes none. The undistorted pair gets none."""
+    fits a barrel per camera and writes it; ``--pinhole`` writes none. The undistorted pair gets none. The
+    report carries the lens the straight edges show."""
     from stereogeo_cli.geometry import intrinsic_matrix, rotation_error, undistort_division
 
     images = [rgb(p) for p in example_pair]
@@ -288,6 +289,9 @@ def test_a_lens_is_fitted_where_the_matches_show_it_and_never_with_pinhole(
         assert reports["lens_pinhole"][side]["dist"] == [] and reports["plain"][side]["dist"] == []
     assert lens["pose"]["distortion_k"][0] < 0 and lens["pose"]["sigma_distortion_k"][0] > 0
     assert reports["plain"]["pose"]["distortion_k"] == [0.0, 0.0]
+    # the straight edges see the lens too (refine/plumb.py), and none in the plain pair
+    assert all(k is not None and k < -0.03 for k in lens["pose"]["edge_distortion_k"])
+    assert all(k is None or abs(k) < 0.03 for k in reports["plain"]["pose"]["edge_distortion_k"])
     errors = {
         name: np.degrees(rotation_error(np.array(r["R"]), np.array(truth["R"])))
         for name, r in reports.items()
