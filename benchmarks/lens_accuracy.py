@@ -44,15 +44,19 @@ def true_stretch(camera: dict) -> float | None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("datasets", nargs="+", type=Path)
     parser.add_argument("--model", type=Path, default=None)
     parser.add_argument("--no-edges", action="store_true", help="without the straight edges' evidence")
     args = parser.parse_args()
     conf = {"plumb": {"enabled": False}} if args.no_edges else None
     calibrator = Calibrator(args.model, conf=conf)
-    print("| set | views with a lens | fitted | fitted lens: error (stretch / px at the corner) | edges' lens: "
-          "views, error |")  # fmt: skip
+    print(
+        "| set | views with a lens | fitted | fitted lens: error (stretch / px at the corner) "
+        "| edges' lens: views, error |"
+    )
     print("|---|---|---|---|---|")
     for folder in args.datasets:
         fitted, edges, corner_px, chosen, views = [], [], [], 0, 0
