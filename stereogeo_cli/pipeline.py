@@ -56,7 +56,7 @@ default_conf = {
     # lens (stereogeo_cli/refine/lines.py, docs/refine.md)
     "lines": {},  # overrides of stereogeo_cli.refine.lines.default_conf ({"enabled": False}: fields alone)
     # overrides of stereogeo_cli.refine.plumb.default_conf: the lens read from the line segments' straight
-    # edges, a prior on the fusion's distortion (needs the line segments)
+    # edges, evidence in the fusion's test of whether to fit a lens (needs the line segments)
     "plumb": {},
     "match": {},  # overrides of stereogeo_cli.fuse.matches.default_conf
     "fuse": {},  # overrides of stereogeo_cli.fuse.pose.default_conf
@@ -269,7 +269,7 @@ class Calibrator:
                 None if focal_left is not None else fit_left.sigma["focal_px"] / fit_left.focal_px,
                 None if focal_right is not None else fit_right.sigma["focal_px"] / fit_right.focal_px,
             ),
-            distortion_prior=(
+            distortion_evidence=(
                 None if edge_lens[0] is None else edge_lens[0].division_k(fit_left.focal_px),
                 None if edge_lens[1] is None else edge_lens[1].division_k(fit_right.focal_px),
             ),
@@ -303,6 +303,11 @@ class Calibrator:
             for k, K in zip(pose.distortion, (K_left, K_right), strict=True)
         )
 
+        # the edges' lens in the final K's coordinates, as the fusion's k is reported
+        edge_k = [
+            None if lens is None else lens.division_k(K[0, 0])
+            for lens, K in zip(edge_lens, (K_left, K_right), strict=True)
+        ]
         if baseline_m is not None:
             baseline, scale_source = float(baseline_m), "baseline"
         else:
@@ -335,14 +340,8 @@ class Calibrator:
                     "sigma_distortion_k": [_finite(s) for s in pose.sigma_distortion],
                     # the lens each image's straight edges show, in the same units, with its 1-sigma (None:
                     # too few long edges, or they disagree); it weighed in the choice of a lens
-                    "edge_distortion_k": [
-                        None if lens is None else float(lens.division_k(K[0, 0])[0])
-                        for lens, K in zip(edge_lens, (K_left, K_right), strict=True)
-                    ],
-                    "sigma_edge_distortion_k": [
-                        None if lens is None else float(lens.division_k(K[0, 0])[1])
-                        for lens, K in zip(edge_lens, (K_left, K_right), strict=True)
-                    ],
+                    "edge_distortion_k": [None if k is None else float(k[0]) for k in edge_k],
+                    "sigma_edge_distortion_k": [None if k is None else float(k[1]) for k in edge_k],
                     # relative 1-sigma of a learned baseline (the model's validation figure); None when given
                     "sigma_baseline_rel": self._learned_scale_sigma if scale_source == "learned" else None,
                 },

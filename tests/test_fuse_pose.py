@@ -207,7 +207,7 @@ def test_a_lens_the_straight_edges_show_decides_where_the_matches_alone_do_not()
         R, T = _rig(rng)
         m = _distorted_matches(rng, K, K, R, T / np.linalg.norm(T) * 0.2, D, count=100)
         for name, prior in (("matches", (None, None)), ("with edges", edges)):
-            pose = fuse_relative_pose(m, K, K, prior_R=R, prior_t=T, distortion_prior=prior)
+            pose = fuse_relative_pose(m, K, K, prior_R=R, prior_t=T, distortion_evidence=prior)
             chosen[name] += pose.distortion != (0.0, 0.0)
             errors[name].append(np.degrees(rotation_error(pose.R, R)))
     assert chosen["with edges"] >= chosen["matches"] + 2, chosen
@@ -217,7 +217,7 @@ def test_a_lens_the_straight_edges_show_decides_where_the_matches_alone_do_not()
     for _ in range(10):
         R, T = _rig(rng)
         m = _matches(rng, K, K, R, T, noise_px=1.0, outliers=0.3)
-        pose = fuse_relative_pose(m, K, K, prior_R=R, prior_t=T, distortion_prior=edges)
+        pose = fuse_relative_pose(m, K, K, prior_R=R, prior_t=T, distortion_evidence=edges)
         plain = fuse_relative_pose(m, K, K, prior_R=R, prior_t=T)
         assert max(abs(k) for k in pose.distortion) < 0.03  # the edges say -0.22
         assert rotation_error(pose.R, R) < rotation_error(plain.R, R) + np.radians(0.05)

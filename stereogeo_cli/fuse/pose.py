@@ -176,7 +176,7 @@ def fuse_relative_pose(
     prior_R: np.ndarray | None = None,
     prior_t: np.ndarray | None = None,
     focal_sigma_rel: tuple[float | None, float | None] = (None, None),
-    distortion_prior: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
+    distortion_evidence: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
     conf: dict | None = None,
 ) -> RelativePose:
     """Relative pose from matches, gravity and the pose head, each weighted by its uncertainty.
@@ -190,7 +190,7 @@ def fuse_relative_pose(
         focal_sigma_rel: the relative 1-sigma of each camera's focal length in K (None: known, held).
             The ratio of the two focals is refined with the pose, each camera taking a share of the
             correction in proportion to its variance; ``focal_scale`` in the result says how far each moved.
-        distortion_prior: per camera, a (k, 1-sigma) of its division-model k in the normalised coordinates
+        distortion_evidence: per camera, a (k, 1-sigma) of its division-model k in the normalised coordinates
             of its K read from other evidence (the image's straight edges, ``refine/plumb.py``), or None.
             It weighs in the test of whether a lens is fitted at all (a chi-square of how much better it
             likes the fitted k than none); the k itself is the matches'.
@@ -299,7 +299,7 @@ def fuse_relative_pose(
         on = (matches.left[best.mask], matches.right[best.mask], K_left, K_right, noise, priors, split)
         R, t, d, _, _, _, pinhole_cost = _refine_pose(best.R, best.t, best.d, (0.0, 0.0), *on, None, conf)
         _, _, _, k, _, _, radial_cost = _refine_pose(R, t, d, (0.0, 0.0), *on, k_bounds, conf)
-        if pinhole_cost + _lens_evidence(k, distortion_prior) - radial_cost > conf["distortion_min_gain"]:
+        if pinhole_cost + _lens_evidence(k, distortion_evidence) - radial_cost > conf["distortion_min_gain"]:
             best, radial = fit(best.R, best.t, best.d, best.mask, k_bounds), True
     # Most rigs pair two identical cameras. Where the matches cannot tell the focal ratio from 1 (it trades
     # against a forward component of t on a rig looking ahead), both focal lengths are held equal: the same
@@ -351,11 +351,11 @@ def fuse_relative_pose(
     )  # fmt: skip
 
 
-def _lens_evidence(k, distortion_prior) -> float:
+def _lens_evidence(k, distortion_evidence) -> float:
     """How much better other evidence of the lens (per camera (k, 1-sigma) or None) likes the distortion
     ``k`` than none: the drop of its chi-square from k = 0 to k."""
     evidence = 0.0
-    for k_side, given in zip(k, distortion_prior, strict=True):
+    for k_side, given in zip(k, distortion_evidence, strict=True):
         if given is not None and np.isfinite(given[1]) and given[1] > 0:
             evidence += (given[0] ** 2 - (k_side - given[0]) ** 2) / given[1] ** 2
     return float(evidence)
