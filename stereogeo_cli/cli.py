@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -452,6 +453,14 @@ def export_onnx_command(
             "learned baseline's sigma. Default: the fusion's fixed 5° and 15°, no baseline sigma."
         ),
     ] = None,
+    depth_sigma: Annotated[
+        float | None,
+        typer.Option(
+            help="For a model with a depth head: the relative 1-sigma of the baseline that calibrate reads "
+            "from the matches and the depth (68th percentile on validation data, as "
+            "benchmarks/depth_baseline.py prints it). calibrate reports it as the baseline's sigma."
+        ),
+    ] = None,
 ) -> None:
     """Export a checkpoint to one ONNX file (both views, any size), after checking it against torch."""
     try:
@@ -465,6 +474,10 @@ def export_onnx_command(
         extra: dict[str, float | str] = {"sigma_inflation": sigma_inflation.replace(" ", "")}
         if pose_sigmas is not None:
             extra.update(_pose_sigmas(pose_sigmas))
+        if depth_sigma is not None:
+            if not (depth_sigma > 0 and math.isfinite(depth_sigma)):
+                raise StereoGeoError(f"--depth-sigma must be a positive fraction, got {depth_sigma}")
+            extra["depth_sigma_scale_rel"] = depth_sigma
         result = export_onnx(
             checkpoint, output, model_version=model_version, training_data=training_data, extra_metadata=extra
         )

@@ -16,6 +16,7 @@ import numpy as np
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.fuse import Matches, RelativePose, fuse_relative_pose, match_features, share_gravity
 from stereogeo_cli.fuse.pose import default_conf as fuse_conf
+from stereogeo_cli.fuse.scale import DepthField, baseline_from_depth
 from stereogeo_cli.geometry import (
     corner_radius,
     intrinsic_matrix,
@@ -26,7 +27,7 @@ from stereogeo_cli.geometry import (
 )
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.images import check_pair
-from stereogeo_cli.network.runtime import FieldNetwork, ViewFields
+from stereogeo_cli.network.runtime import DEPTH_STRIDE, FieldNetwork, ViewFields
 from stereogeo_cli.refine import CameraFit, parse_sigma_inflation, refine_camera
 from stereogeo_cli.refine.lines import default_conf as lines_conf
 from stereogeo_cli.refine.lines import detect_segments, gravity_with_lines
@@ -60,6 +61,9 @@ default_conf = {
     "plumb": {},
     "match": {},  # overrides of stereogeo_cli.fuse.matches.default_conf
     "fuse": {},  # overrides of stereogeo_cli.fuse.pose.default_conf
+    # overrides of stereogeo_cli.fuse.scale.default_conf: the metric baseline from the matches and the depth
+    # head (models that have one), in place of the pose head's learned length ({"enabled": False}: off)
+    "scale": {},
     "refine": {},  # overrides of stereogeo_cli.refine.default_conf
 }
 
@@ -130,6 +134,9 @@ class Calibrator:
         }
         scale_sigma = self.network.metadata.get("pose_sigma_scale_rel")
         self._learned_scale_sigma = float(scale_sigma) if scale_sigma is not None else None
+        depth_sigma = self.network.metadata.get("depth_sigma_scale_rel")
+        self._depth_scale_sigma = float(depth_sigma) if depth_sigma is not None else None
+        self.conf["scale"] = {"enabled": True, **self.conf["scale"]}
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-matching")
 
     def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:
@@ -308,11 +315,24 @@ class Calibrator:
             None if lens is None else lens.division_k(K[0, 0])
             for lens, K in zip(edge_lens, (K_left, K_right), strict=True)
         ]
+        baseline_source, baseline_sigma = None, None
         if baseline_m is not None:
             baseline, scale_source = float(baseline_m), "baseline"
         else:
             baseline, scale_source = float(np.linalg.norm(net.translation)), "learned"
-            if not np.isfinite(baseline) or baseline <= 1e-6:
+            baseline_source, baseline_sigma = "pose_head", self._learned_scale_sigma
+            found = None
+            if net.left.depth is not None and pose.source == "matches" and self.conf["scale"]["enabled"]:
+                tick = time.perf_counter()
+                depth = DepthField(net.left.depth, net.left.depth_spread, DEPTH_STRIDE, net.left.resize_crop)
+                scale_conf = {k: v for k, v in self.conf["scale"].items() if k != "enabled"}
+                found = baseline_from_depth(
+                    matches, depth, K_left, K_right, pose.R, pose.t_direction, pose.distortion, scale_conf
+                )
+                timing["scale"] = (time.perf_counter() - tick) * 1e3
+            if found is not None:
+                baseline, baseline_source, baseline_sigma = found.baseline_m, "depth", self._depth_scale_sigma
+            elif not np.isfinite(baseline) or baseline <= 1e-6:
                 baseline = 1.0
                 warnings.append("the pose head gave no usable metric scale: T has unit length")
         timing["total"] = (time.perf_counter() - start) * 1e3
@@ -342,8 +362,13 @@ class Calibrator:
                     # too few long edges, or they disagree); it weighed in the choice of a lens
                     "edge_distortion_k": [None if k is None else float(k[0]) for k in edge_k],
                     "sigma_edge_distortion_k": [None if k is None else float(k[1]) for k in edge_k],
+                    # where a learned baseline came from: "depth" (the matches with the depth head's depth,
+                    # stereogeo_cli/fuse/scale.py) or "pose_head"; None when given
+                    "baseline_source": baseline_source,
+                    # the pose head's own learned length of T in metres (a second opinion; the network's)
+                    "head_baseline_m": _finite(float(np.linalg.norm(net.translation))),
                     # relative 1-sigma of a learned baseline (the model's validation figure); None when given
-                    "sigma_baseline_rel": self._learned_scale_sigma if scale_source == "learned" else None,
+                    "sigma_baseline_rel": baseline_sigma,
                 },
                 # vertical line segments each camera's gravity was fitted with (left, right)
                 "vertical_segments": used,

@@ -175,6 +175,10 @@ def test_a_learned_baseline_carries_the_models_sigma_and_a_given_one_none(pair, 
     assert given["pose"]["sigma_baseline_rel"] is None
     expected = float(metadata["pose_sigma_scale_rel"]) if "pose_sigma_scale_rel" in metadata else None
     assert learned["scale_source"] == "learned" and learned["pose"]["sigma_baseline_rel"] == expected
+    # a model without a depth head: the length is the pose head's, which the report also gives on its own
+    assert learned["pose"]["baseline_source"] == "pose_head" and given["pose"]["baseline_source"] is None
+    assert learned["baseline_m"] == pytest.approx(learned["pose"]["head_baseline_m"], rel=1e-6)
+    assert given["pose"]["head_baseline_m"] == pytest.approx(learned["pose"]["head_baseline_m"], rel=1e-6)
 
 
 def test_no_lines_leaves_the_gravity_to_the_fields(pair, onnx_model):

@@ -114,6 +114,43 @@ def test_export_from_checkpoint_file(tmp_path):
     assert FieldNetwork(tmp_path / "small.onnx").metadata["model_version"] == "untrained"
 
 
+def test_a_depth_head_is_exported_after_the_other_outputs_and_read_by_the_runtime(tmp_path):
+    torch.manual_seed(1)
+    small = {
+        "pretrained": False,
+        "decoder_dim": 32,
+        "head_dim": 16,
+        "pose_reduce_dim": 32,
+        "pose_hidden_dim": 64,
+    }
+    model = StereoGeoNet({**small, "depth_head": True, "depth_dim": 16}).eval()
+    report = export_onnx(model, tmp_path / "depth.onnx", parity_sizes=((64, 96), (96, 64)))
+    names = list(OUTPUT_NAMES) + [f"{v}_{k}" for v in ("left", "right") for k in ("depth", "depth_spread")]
+    assert [o.name for o in onnx.load(tmp_path / "depth.onnx").graph.output] == names
+    assert set(report["max_abs_error"]) == set(names) and max(report["max_abs_error"].values()) < 1e-4
+    network = FieldNetwork(tmp_path / "depth.onnx", threads=1)
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)
+    out = network.predict(image, image[:, ::-1].copy())
+    for view in (out.left, out.right):
+        width, height = view.image_size
+        assert view.depth.shape == view.depth_spread.shape == (height // 8, width // 8)
+    with torch.no_grad():
+        expected = model(*(torch.from_numpy(network.prepare(im)[0]) for im in (image, image[:, ::-1].copy())))
+    np.testing.assert_allclose(out.left.depth, expected["left_depth"][0].numpy(), atol=1e-4)
+    # a model without one leaves them out
+    plain = FieldNetwork(_small_export(tmp_path), threads=1).predict(image, image)
+    assert plain.left.depth is None and plain.right.depth_spread is None
+
+
+def _small_export(tmp_path):
+    model = StereoGeoNet(
+        {"pretrained": False, "decoder_dim": 16, "head_dim": 8, "pose_reduce_dim": 16, "pose_hidden_dim": 32}
+    )
+    export_onnx(model, tmp_path / "plain.onnx", parity_sizes=((64, 64),))
+    return tmp_path / "plain.onnx"
+
+
 def test_failed_parity_check_writes_no_file(tmp_path):
     model = StereoGeoNet(
         {"pretrained": False, "decoder_dim": 16, "head_dim": 8, "pose_reduce_dim": 16, "pose_hidden_dim": 32}

@@ -78,6 +78,22 @@ def test_output_shapes_and_ranges(model, size_left, size_right):
     assert (out["quaternion"][:, 0] >= 0).all()
 
 
+def test_a_depth_head_adds_its_outputs_last_at_stride_8_and_leaves_the_rest():
+    torch.manual_seed(0)
+    plain = StereoGeoNet({"pretrained": False}).eval()
+    torch.manual_seed(0)
+    with_depth = StereoGeoNet({"pretrained": False, "depth_head": True}).eval()
+    with_depth.load_state_dict(plain.state_dict(), strict=False)
+    left, right = torch.rand(1, 3, 96, 128), torch.rand(1, 3, 128, 64)
+    with torch.no_grad():
+        a, b = plain(left, right), with_depth(left, right)
+    assert tuple(b) == with_depth.output_names() and tuple(b)[: len(OUTPUT_NAMES)] == OUTPUT_NAMES
+    assert b["left_depth"].shape == b["left_depth_spread"].shape == (1, 12, 16)
+    assert b["right_depth"].shape == (1, 16, 8)
+    for name in OUTPUT_NAMES:
+        torch.testing.assert_close(a[name], b[name], rtol=0, atol=0)
+
+
 def test_quaternion_sign_is_fixed_and_gradients_flow():
     model = StereoGeoNet({"pretrained": False}).train()
     with torch.no_grad():

@@ -21,6 +21,7 @@ from stereogeo_cli.network.data import (  # noqa: E402
     training_sample,
 )
 from stereogeo_cli.network.losses import ground_truth_fields  # noqa: E402
+from stereogeo_cli.network.model import StereoGeoNet  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -399,3 +400,83 @@ def test_training_on_depth_maps_runs_the_match_losses_and_leaves_the_frozen_part
     b = torch.load(tmp_path / "run" / "latest.pt", weights_only=True)["model"]
     assert all(torch.equal(a[k], b[k]) for k in a if not k.startswith("pose_head"))
     assert any(not torch.equal(a[k], b[k]) for k in a if k.startswith("pose_head"))
+
+
+def test_depth_targets_are_each_cells_log_depth_over_focal(depth_pair):
+    from stereogeo_cli.network.data import depth_targets
+
+    s = depth_pair
+    sample = training_sample(s.left, s.right, s.calib, (224, 160), (s.depth_left, s.depth_right))
+    q = sample["depth_left"].numpy()
+    assert q.shape == (160 // 8, 224 // 8)
+    assert np.isfinite(q).mean() > 0.8
+    # back to metres at each cell centre, against the depth map read there directly
+    rc = cover_crop(s.left.shape[1], s.left.shape[0], 224, 160)
+    focal_n = float(sample["focal"][0]) / 80.0
+    cols, rows = np.meshgrid(np.arange(28), np.arange(20))
+    centres = rc.points_to_input(np.stack([cols * 8 + 3.5, rows * 8 + 3.5], -1).reshape(-1, 2))
+    ij = np.rint(centres).astype(int)
+    z = s.depth_left[ij[:, 1].clip(0, s.depth_left.shape[0] - 1), ij[:, 0].clip(0, s.depth_left.shape[1] - 1)]
+    valid = np.isfinite(q.ravel()) & (z > 0)
+    ratio = np.exp(q.ravel()[valid]) * focal_n / z[valid]
+    assert np.median(np.abs(np.log(ratio))) < 0.03  # a cell's median against its centre pixel
+    # sky: no target; no depth map: no target at all
+    sky = np.zeros_like(s.depth_left)
+    assert np.isnan(depth_targets(sky, rc, float(sample["focal"][0]))).all()
+    assert np.isnan(training_sample(s.left, s.right, s.calib, (224, 160))["depth_left"].numpy()).all()
+
+
+def test_depth_loss_is_least_at_the_truth_with_the_right_spread(depth_pair):
+    from stereogeo_cli.network.losses import compute_losses
+
+    s = depth_pair
+    one = training_sample(s.left, s.right, s.calib, (224, 160), (s.depth_left, s.depth_right))
+    batch = {k: v[None] for k, v in one.items()}
+    with torch.no_grad():
+        out = StereoGeoNet({"pretrained": False, "depth_head": True}).eval()(batch["left"], batch["right"])
+
+    def loss(shift, log_spread):
+        moved = dict(out)
+        for view in ("left", "right"):
+            truth = torch.nan_to_num(batch[f"depth_{view}"])
+            moved[f"{view}_depth"] = truth + shift
+            moved[f"{view}_depth_spread"] = torch.full_like(truth, log_spread)
+        zero = {k: 0.0 for k in ("up_weight", "latitude_weight", "confidence_weight", "camera_weight",
+                                  "rotation_weight", "translation_weight", "epipolar_weight")}  # fmt: skip
+        return float(compute_losses(moved, batch, {**zero, "depth_weight": 1.0}, with_refiner=False)["depth"])
+
+    assert loss(0.0, -3.0) < loss(0.2, -3.0) < loss(0.5, -3.0)
+    # with errors of 0.2, the spread that is best is about 0.2 (a Laplace scale)
+    assert loss(0.2, np.log(0.2)) < min(loss(0.2, np.log(0.05)), loss(0.2, np.log(0.8)))
+
+
+def test_training_the_depth_head_alone_leaves_the_rest_of_the_model(tmp_path):
+    from stereogeo_cli.synth.config import SynthConfig
+    from stereogeo_cli.synth.dataset import make_dataset
+
+    data = tmp_path / "depth"
+    make_dataset(data, 4, 5, SynthConfig(short_side=96, depth=True), workers=1, progress=False)
+    zero = {k: 0.0 for k in ("up_weight", "latitude_weight", "confidence_weight", "rotation_weight",
+                              "translation_weight")}  # fmt: skip
+    common = {
+        "train_only": ["depth_head"],
+        "model": {"depth_head": True},
+        "loss": {**zero, "depth_weight": 1.0},
+    }
+    first = _run_train(
+        ["--config", str(_config(tmp_path, data, steps=1, out=str(tmp_path / "one"), **common))]
+    )
+    assert first.returncode == 0, first.stderr
+    run = _run_train(
+        [
+            "--config",
+            str(_config(tmp_path, data, steps=2, init=str(tmp_path / "one" / "latest.pt"), **common)),
+        ]
+    )
+    assert run.returncode == 0, run.stderr
+    log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    assert all(np.isfinite(r["depth"]) for r in log if r["event"] == "train")
+    a = torch.load(tmp_path / "one" / "latest.pt", weights_only=True)["model"]
+    b = torch.load(tmp_path / "run" / "latest.pt", weights_only=True)["model"]
+    assert all(torch.equal(a[k], b[k]) for k in a if not k.startswith("depth_head"))
+    assert any(not torch.equal(a[k], b[k]) for k in a if k.startswith("depth_head"))

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from stereogeo_cli.geometry import ResizeCrop, apply_resize_crop
-from stereogeo_cli.network.runtime import cell_pixel_coordinates
+from stereogeo_cli.network.runtime import DEPTH_STRIDE, cell_pixel_coordinates
 
 TRAIN_SIZES = ((256, 192), (320, 192), (224, 224), (192, 256))  # (width, height): 4:3, 5:3, 1:1, 3:4
 
@@ -92,6 +92,31 @@ def match_targets(calib: dict, rc_left: ResizeCrop, rc_right: ResizeCrop, depth=
     return {k: v.astype(np.float32) if v.dtype != bool else v for k, v in out.items()}
 
 
+DEPTH_MIN_COVER = 0.75  # a cell has a depth target when this share of its pixels hit something (not sky)
+
+
+def depth_targets(depth: np.ndarray | None, rc: ResizeCrop, focal: float) -> np.ndarray:
+    """The depth head's targets for one view cut by ``rc``: per stride-8 cell [H/8 x W/8] the median log
+    z-depth of its pixels minus log(focal / half the short side), ``focal`` in pixels of the cut
+    (:class:`stereogeo_cli.network.model.DepthHead`); NaN where the cell sees too much sky, or without a
+    depth map (``depth``: z-depth of the uncut image, 0 for sky)."""
+    width, height = rc.out_size
+    out = np.full((height // DEPTH_STRIDE, width // DEPTH_STRIDE), np.nan, dtype=np.float32)
+    if depth is None:
+        return out
+    resized = cv2.resize(np.asarray(depth, np.float32), rc.resized_size, interpolation=cv2.INTER_NEAREST)
+    x, y = rc.crop
+    cut = resized[y : y + out.shape[0] * DEPTH_STRIDE, x : x + out.shape[1] * DEPTH_STRIDE]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        logs = np.where(cut > 0, np.log(np.maximum(cut, 1e-6)), np.nan)
+    blocks = logs.reshape(out.shape[0], DEPTH_STRIDE, out.shape[1], DEPTH_STRIDE).transpose(0, 2, 1, 3)
+    blocks = blocks.reshape(*out.shape, -1)
+    covered = np.isfinite(blocks).mean(-1) >= DEPTH_MIN_COVER
+    if covered.any():
+        out[covered] = np.nanmedian(blocks[covered], axis=-1) - np.log(focal / (min(width, height) / 2))
+    return out
+
+
 def training_sample(
     left: np.ndarray, right: np.ndarray, calib: dict, size: tuple[int, int], depth=None
 ) -> dict:
@@ -101,7 +126,8 @@ def training_sample(
     cut images; ``gravity`` [2 x 3] up vectors (NaN when unknown); ``R`` [3 x 3], ``T`` [3] metres;
     ``has_pose`` and ``has_translation`` (bool tensors: a pure-rotation pair has T = 0); and the pose
     head's cells' :func:`match_targets` (``infinity_xy``, ``match_xy``, ``match_valid``; no match is valid
-    without ``depth``, the uncut left and right depth maps).
+    without ``depth``, the uncut left and right depth maps); ``depth_left``, ``depth_right``: the depth
+    head's :func:`depth_targets` (all NaN without ``depth``).
     """
     images, focals, gravities, cuts = [], [], [], []
     for image, cam in ((left, calib["left"]), (right, calib["right"])):
@@ -117,6 +143,8 @@ def training_sample(
     R = np.asarray(calib["R"], dtype=float) if has_pose else np.eye(3)
     T = np.asarray(calib["T"], dtype=float) if has_pose else np.zeros(3)
     targets = match_targets(calib, cuts[0], cuts[1], depth)
+    for v, view in enumerate(("left", "right")):
+        targets[f"depth_{view}"] = depth_targets(None if depth is None else depth[v], cuts[v], focals[v])
     return {
         **{k: torch.from_numpy(v) for k, v in targets.items()},
         "left": images[0],

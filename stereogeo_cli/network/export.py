@@ -22,7 +22,7 @@ import torch
 from stereogeo_cli import __version__
 from stereogeo_cli.errors import EXIT_INTERNAL, StereoGeoError
 from stereogeo_cli.network.checkpoint import give_default_permissions, load_checkpoint, model_from_checkpoint
-from stereogeo_cli.network.model import INPUT_MULTIPLE, OUTPUT_NAMES, OUTPUT_STRIDE, StereoGeoNet
+from stereogeo_cli.network.model import DEPTH_OUTPUTS, INPUT_MULTIPLE, OUTPUT_STRIDE, StereoGeoNet
 
 OPSET = 18
 INPUT_SHORT_SIDE = 320
@@ -39,6 +39,11 @@ OUTPUT_SHAPES: dict[str, tuple[str | int, ...]] = {
     **{f"{v}_{k}": dims for v, dims in _FIELD_DIMS.items() for k in _SCALAR_FIELDS},
     "quaternion": ("batch", 4),
     "translation": ("batch", 3),
+    **{
+        f"{v}_{k}": (dims[0], dims[1][:-1] + "8", dims[2][:-1] + "8")
+        for v, dims in _FIELD_DIMS.items()
+        for k in DEPTH_OUTPUTS
+    },
 }
 
 
@@ -113,14 +118,15 @@ def parity_errors(
     session = ort.InferenceSession(str(onnx_path), options, providers=["CPUExecutionProvider"])
     pairs = [(s, s) for s in sizes] + ([(sizes[0], sizes[1])] if len(sizes) > 1 else [])
     generator = torch.Generator().manual_seed(seed)
-    errors = dict.fromkeys(OUTPUT_NAMES, 0.0)
+    names = model.output_names()
+    errors = dict.fromkeys(names, 0.0)
     for size_left, size_right in pairs:
         left = torch.rand(1, 3, *size_left, generator=generator)
         right = torch.rand(1, 3, *size_right, generator=generator)
         with torch.no_grad():
             expected = model(left, right)
-        got = session.run(list(OUTPUT_NAMES), {"left": left.numpy(), "right": right.numpy()})
-        for name, value in zip(OUTPUT_NAMES, got, strict=True):
+        got = session.run(list(names), {"left": left.numpy(), "right": right.numpy()})
+        for name, value in zip(names, got, strict=True):
             if value.shape != tuple(expected[name].shape):
                 raise StereoGeoError(
                     f"ONNX output {name} has shape {value.shape}, torch {tuple(expected[name].shape)}",
@@ -190,7 +196,7 @@ def export_onnx(
                 external_data=False,
                 opset_version=opset,
                 input_names=["left", "right"],
-                output_names=list(OUTPUT_NAMES),
+                output_names=list(model.output_names()),
                 dynamic_axes=dynamic_axes,
                 do_constant_folding=True,
             )

@@ -37,6 +37,9 @@ default_conf = {
     # ... and each cell's vote against log |T| − log |its true parallax| (smooth L1 of the log), where that
     # parallax (true position minus a point at infinity's) is at least ``vote_min_parallax``.
     "vote_weight": 0.0,
+    # the depth head (model option depth_head): Laplace negative log-likelihood of each cell's log depth over
+    # focal, with its predicted spread, where the depth maps give one (make-data --depth)
+    "depth_weight": 0.0,
     "vote_min_parallax": 0.02,
     "vote_beta": 0.1,
     # The head's point at infinity against the rotation's true one (mean over the cells; smooth L1).
@@ -247,9 +250,20 @@ def compute_losses(out: dict, batch: dict, conf: dict | None = None, with_refine
         )  # fmt: skip
     if "pose_infinity" in out and "infinity_xy" in batch:
         losses.update(match_losses(out, batch, conf))
+    if conf["depth_weight"] > 0 and "left_depth" in out and "depth_left" in batch:
+        nll = []
+        for view in ("left", "right"):
+            target = batch[f"depth_{view}"]
+            valid = torch.isfinite(target)
+            if valid.any():
+                spread = out[f"{view}_depth_spread"][valid].clamp(-5.0, 3.0)
+                error = (out[f"{view}_depth"][valid] - target[valid]).abs()
+                nll.append((error * torch.exp(-spread) + spread).mean())
+        if nll:
+            losses["depth"] = torch.stack(nll).mean()
     weights = {
         "epipolar": conf["epipolar_weight"], "match": conf["match_weight"], "vote": conf["vote_weight"],
-        "infinity": conf["infinity_weight"],
+        "infinity": conf["infinity_weight"], "depth": conf["depth_weight"],
         "up": conf["up_weight"], "latitude": conf["latitude_weight"], "confidence": conf["confidence_weight"],
         "camera": conf["camera_weight"], "rotation": conf["rotation_weight"],
         "translation": conf["translation_weight"],

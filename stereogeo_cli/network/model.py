@@ -17,6 +17,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from stereogeo_cli.network.runtime import DEPTH_STRIDE
+
 OUTPUT_STRIDE = 4  # fields are predicted at 1/4 of the input resolution
 INPUT_MULTIPLE = 32  # input height and width must be multiples of the encoder's total stride
 
@@ -215,6 +217,53 @@ def cell_coordinates(x: torch.Tensor, stride: int) -> torch.Tensor:
     return torch.cat([xs, ys], dim=1)
 
 
+class DepthHead(nn.Module):
+    """Per stride-8 cell of one view: the log of its depth in units of the focal length, and a log spread.
+
+    The quantity is ``q = log(Z / f_n)``, Z the z-depth in metres and f_n the focal length in units of half
+    the input's short side: what the size of a known object gives without knowing the field of view (an
+    object of S metres spanning s such units is at Z / f_n = S / s). A disparity of p (same units) between
+    two views a baseline B apart puts the point at Z / f_n = B / p, so ``log B = q + log p`` for each match:
+    the calibrate pipeline reads the metric baseline from exact feature matches this way
+    (stereogeo_cli/fuse/scale.py). The second output is the log of a Laplace scale of q's error (trained
+    by its negative log-likelihood): how far to trust each cell.
+
+    In: the decoder's stride-4 features (pooled to stride 8), the encoder's stride-8 and stride-16 features
+    and its 1280-channel head (reduced; per cell and pooled over the image: the scene's scale cues).
+    """
+
+    def __init__(
+        self, decoder_dim: int, fine_in: int, mid_in: int, global_in: int, dim: int, reduce_dim: int
+    ):
+        super().__init__()
+        self.reduce = ConvBN(global_in, reduce_dim, act=nn.ReLU, bn_momentum=0.1)
+        self.fuse = ConvBN(
+            decoder_dim + fine_in + mid_in + 2 * reduce_dim + 2, dim, act=nn.ReLU, bn_momentum=0.1
+        )
+        self.block = nn.Sequential(SeparableConv(dim, dim), SeparableConv(dim, dim))
+        self.out = nn.Conv2d(dim, 2, 1)
+        with torch.no_grad():  # a 3 m deep scene seen with a 90° field of view; errors of about 0.5 in log
+            self.out.bias.copy_(torch.tensor([math.log(3.0), math.log(0.5)]))
+
+    def forward(self, decoder: torch.Tensor, fine: torch.Tensor, mid: torch.Tensor, head: torch.Tensor):
+        """Features of one view → (q [B x H/8 x W/8], log spread [B x H/8 x W/8])."""
+        reduced = self.reduce(head)
+        pooled = reduced.mean(dim=(2, 3), keepdim=True)
+        x = torch.cat(
+            [
+                F.avg_pool2d(decoder, 2),
+                fine,
+                F.interpolate(mid, scale_factor=2.0, mode="bilinear", align_corners=False),
+                F.interpolate(reduced, scale_factor=4.0, mode="bilinear", align_corners=False),
+                pooled.expand(-1, -1, fine.shape[2], fine.shape[3]),
+                cell_coordinates(fine, DEPTH_STRIDE).expand(fine.shape[0], -1, -1, -1),
+            ],
+            dim=1,
+        )
+        out = self.out(self.block(self.fuse(x)))
+        return out[:, 0], out[:, 1]
+
+
 def _log_length(v: torch.Tensor) -> torch.Tensor:
     """log |v| over the last axis, kept [.. x 1], floored at 1e-3 (displacements in half-short-side units)."""
     return torch.log(v.norm(dim=-1, keepdim=True) + 1e-3)
@@ -403,6 +452,9 @@ class StereoGeoNet(nn.Module):
         # would otherwise drown the field heads' in the shared features under gradient clipping.
         "pose_encoder_grad": 0.1,
         "channels_last": True,  # NHWC weights and activations: about 1.5x faster in torch on CPU
+        # a per-cell depth head (DepthHead: log depth over focal, stride 8) for the metric baseline
+        "depth_head": False,
+        "depth_dim": 64,
     }
 
     def __init__(self, conf: dict[str, Any] | None = None):
@@ -434,6 +486,14 @@ class StereoGeoNet(nn.Module):
             fine_in=LITE0_SKIP_CHANNELS[8],
             scale_votes=bool(c["pose_scale_votes"]),
         )
+        self.depth_head = (
+            DepthHead(
+                c["decoder_dim"], LITE0_SKIP_CHANNELS[8], LITE0_SKIP_CHANNELS[16], LITE0_HEAD_CHANNELS,
+                c["depth_dim"], c["depth_dim"],
+            )
+            if c["depth_head"]
+            else None
+        )  # fmt: skip
         if c["channels_last"]:  # load_state_dict copies into these tensors and keeps their layout
             self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
 
@@ -468,6 +528,10 @@ class StereoGeoNet(nn.Module):
             "up_confidence": torch.sigmoid(up[:, 2]),
             "latitude_confidence": torch.sigmoid(lat[:, 1]),
         }
+        if self.depth_head is not None:
+            fields["depth"], fields["depth_spread"] = self.depth_head(
+                x[:, : self.conf["decoder_dim"]], feats[8], feats[16], feats[0]
+            )
         return fields, (feats[16], feats[0], feats[8])
 
     def pose_scale_terms(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -481,6 +545,10 @@ class StereoGeoNet(nn.Module):
             feat_left[0], feat_right[0], feat_left[1], feat_right[1], feat_left[2], feat_right[2]
         )[3]
 
+    def output_names(self) -> tuple[str, ...]:
+        """The names of :meth:`forward`'s outputs in eval mode, in order."""
+        return OUTPUT_NAMES + (DEPTH_NAMES if self.depth_head is not None else ())
+
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
         """Stereo pair → fields of each view and the relative pose.
 
@@ -492,7 +560,9 @@ class StereoGeoNet(nn.Module):
             ``left_up`` [B x 2 x H1/4 x W1/4] unit up-vectors; ``left_latitude`` [B x H1/4 x W1/4] radians;
             ``left_up_confidence``, ``left_latitude_confidence`` [B x H1/4 x W1/4] in (0, 1); the same four
             for ``right_`` at [H2/4 x W2/4]; ``quaternion`` [B x 4] (w, x, y, z), unit, w ≥ 0, and
-            ``translation`` [B x 3] metres, with ``X_right = R @ X_left + T``.
+            ``translation`` [B x 3] metres, with ``X_right = R @ X_left + T``; with a depth head also
+            ``left_depth``, ``left_depth_spread``, ``right_depth``, ``right_depth_spread`` [B x H/8 x W/8]
+            (:class:`DepthHead`). :meth:`output_names` lists them in order.
         """
         fields_left, feat_left = self.forward_view(left)
         fields_right, feat_right = self.forward_view(right)
@@ -503,10 +573,12 @@ class StereoGeoNet(nn.Module):
         quaternion, translation, matches, terms = self.pose_head(
             feat_left[0], feat_right[0], feat_left[1], feat_right[1], feat_left[2], feat_right[2]
         )
-        out = {f"left_{k}": v for k, v in fields_left.items()}
-        out.update({f"right_{k}": v for k, v in fields_right.items()})
+        views = {"left": fields_left, "right": fields_right}
+        out = {f"{view}_{k}": views[view][k] for view in views for k in FIELD_OUTPUTS}
         out["quaternion"] = quaternion
         out["translation"] = translation
+        if self.depth_head is not None:  # after the rest, so the first ten outputs are every model's
+            out.update({f"{view}_{k}": views[view][k] for view in views for k in DEPTH_OUTPUTS})
         if self.training:  # for the epipolar loss
             out["pose_match_left"], out["pose_match_right"] = matches
             if terms:  # for the losses on the point at infinity and the votes
@@ -514,8 +586,11 @@ class StereoGeoNet(nn.Module):
         return out
 
 
+FIELD_OUTPUTS = ("up", "latitude", "up_confidence", "latitude_confidence")
+DEPTH_OUTPUTS = ("depth", "depth_spread")
 OUTPUT_NAMES = (
-    "left_up", "left_latitude", "left_up_confidence", "left_latitude_confidence",
-    "right_up", "right_latitude", "right_up_confidence", "right_latitude_confidence",
-    "quaternion", "translation",
-)  # fmt: skip
+    *(f"{view}_{k}" for view in ("left", "right") for k in FIELD_OUTPUTS),
+    "quaternion",
+    "translation",
+)  # every model's outputs; a model with a depth head adds DEPTH_NAMES
+DEPTH_NAMES = tuple(f"{view}_{k}" for view in ("left", "right") for k in DEPTH_OUTPUTS)

@@ -23,6 +23,7 @@ from stereogeo_cli.geometry import (
 )
 
 VIEW_OUTPUTS = ("up", "latitude", "up_confidence", "latitude_confidence")
+DEPTH_STRIDE = 8  # the depth head's cells (stereogeo_cli.network.model.DepthHead), in network-input pixels
 REQUIRED_METADATA = ("input_short_side", "input_multiple", "output_stride")
 
 
@@ -39,6 +40,10 @@ class ViewFields:
     latitude_confidence: np.ndarray  # [h x w] in (0, 1)
     pixel_xy: tuple[np.ndarray, np.ndarray]  # (x, y) [h x w] each: cell centres in network-input pixels
     resize_crop: ResizeCrop  # original image → network input; ``resize_crop.focal_to_input`` maps f back
+    # a model with a depth head: per stride-8 cell log(depth / focal) and the log of its error's spread
+    # [H/8 x W/8] (stereogeo_cli.network.model.DepthHead); None otherwise
+    depth: np.ndarray | None = None
+    depth_spread: np.ndarray | None = None
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -170,6 +175,9 @@ class FieldNetwork:
                 latitude_confidence=fields["latitude_confidence"],
                 pixel_xy=cell_pixel_coordinates(h, w, self.stride),
                 resize_crop=rc,
+                # the depth head's output is the unmirrored run's (``flip`` averages the fields only)
+                depth=out[f"{view}_depth"][0] if f"{view}_depth" in out else None,
+                depth_spread=out[f"{view}_depth_spread"][0] if f"{view}_depth_spread" in out else None,
             )
         return NetworkOutput(
             views["left"],
