@@ -446,6 +446,9 @@ def test_depth_loss_is_least_at_the_truth_with_the_right_spread(depth_pair):
         return float(compute_losses(moved, batch, {**zero, "depth_weight": 1.0}, with_refiner=False)["depth"])
 
     assert loss(0.0, -3.0) < loss(0.2, -3.0) < loss(0.5, -3.0)
+    plain = {k: v for k, v in out.items() if "depth" not in k}  # a model without the head: a clear error
+    with pytest.raises(ValueError, match="depth_head"):
+        compute_losses(plain, batch, {"depth_weight": 1.0}, with_refiner=False)
     # with errors of 0.2, the spread that is best is about 0.2 (a Laplace scale)
     assert loss(0.2, np.log(0.2)) < min(loss(0.2, np.log(0.05)), loss(0.2, np.log(0.8)))
 
@@ -463,6 +466,8 @@ def test_training_the_depth_head_alone_leaves_the_rest_of_the_model(tmp_path):
         "model": {"depth_head": True},
         "loss": {**zero, "depth_weight": 1.0},
     }
+    no_head = _run_train(["--config", str(_config(tmp_path, data, steps=1, loss=common["loss"]))])
+    assert no_head.returncode == 2 and "depth head" in no_head.stderr and "Traceback" not in no_head.stderr
     first = _run_train(
         ["--config", str(_config(tmp_path, data, steps=1, out=str(tmp_path / "one"), **common))]
     )

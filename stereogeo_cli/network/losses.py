@@ -250,7 +250,11 @@ def compute_losses(out: dict, batch: dict, conf: dict | None = None, with_refine
         )  # fmt: skip
     if "pose_infinity" in out and "infinity_xy" in batch:
         losses.update(match_losses(out, batch, conf))
-    if conf["depth_weight"] > 0 and "left_depth" in out and "depth_left" in batch:
+    if conf["depth_weight"] > 0 and "left_depth" not in out:
+        raise ValueError(
+            "the depth loss (depth_weight > 0) needs a model with a depth head (depth_head: true)"
+        )
+    if conf["depth_weight"] > 0 and "depth_left" in batch:
         nll = []
         for view in ("left", "right"):
             target = batch[f"depth_{view}"]

@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from stereogeo_cli.network.runtime import DEPTH_STRIDE
+from stereogeo_cli.network.runtime import DEPTH_STRIDE, VIEW_OUTPUTS
 
 OUTPUT_STRIDE = 4  # fields are predicted at 1/4 of the input resolution
 INPUT_MULTIPLE = 32  # input height and width must be multiples of the encoder's total stride
@@ -574,7 +574,7 @@ class StereoGeoNet(nn.Module):
             feat_left[0], feat_right[0], feat_left[1], feat_right[1], feat_left[2], feat_right[2]
         )
         views = {"left": fields_left, "right": fields_right}
-        out = {f"{view}_{k}": views[view][k] for view in views for k in FIELD_OUTPUTS}
+        out = {f"{view}_{k}": views[view][k] for view in views for k in VIEW_OUTPUTS}
         out["quaternion"] = quaternion
         out["translation"] = translation
         if self.depth_head is not None:  # after the rest, so the first ten outputs are every model's
@@ -586,10 +586,9 @@ class StereoGeoNet(nn.Module):
         return out
 
 
-FIELD_OUTPUTS = ("up", "latitude", "up_confidence", "latitude_confidence")
 DEPTH_OUTPUTS = ("depth", "depth_spread")
 OUTPUT_NAMES = (
-    *(f"{view}_{k}" for view in ("left", "right") for k in FIELD_OUTPUTS),
+    *(f"{view}_{k}" for view in ("left", "right") for k in VIEW_OUTPUTS),
     "quaternion",
     "translation",
 )  # every model's outputs; a model with a depth head adds DEPTH_NAMES

@@ -258,6 +258,10 @@ def train(conf: dict) -> dict:
     latest = out / "latest.pt"
 
     model = StereoGeoNet({**conf["model"], "pretrained": True})
+    if conf["loss"].get("depth_weight", 0) > 0 and model.depth_head is None:
+        raise StereoGeoError(
+            'loss depth_weight > 0 needs a model with a depth head ("model": {"depth_head": true})'
+        )
     prefixes = tuple(conf["train_only"])
     trained = [p for n, p in model.named_parameters() if not prefixes or n.startswith(prefixes)]
     if not trained:
