@@ -17,6 +17,7 @@ from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.fuse import Matches, RelativePose, fuse_relative_pose, match_features, share_gravity
 from stereogeo_cli.fuse.pose import default_conf as fuse_conf
 from stereogeo_cli.fuse.scale import DepthField, baseline_from_depth
+from stereogeo_cli.fuse.scale import default_conf as scale_conf
 from stereogeo_cli.geometry import (
     corner_radius,
     intrinsic_matrix,
@@ -136,7 +137,7 @@ class Calibrator:
         self._learned_scale_sigma = float(scale_sigma) if scale_sigma is not None else None
         depth_sigma = self.network.metadata.get("depth_sigma_scale_rel")
         self._depth_scale_sigma = float(depth_sigma) if depth_sigma is not None else None
-        self.conf["scale"] = {"enabled": True, **self.conf["scale"]}
+        self.conf["scale"] = {**scale_conf, **self.conf["scale"]}
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-matching")
 
     def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:
@@ -325,9 +326,15 @@ class Calibrator:
             if net.left.depth is not None and pose.source == "matches" and self.conf["scale"]["enabled"]:
                 tick = time.perf_counter()
                 depth = DepthField(net.left.depth, net.left.depth_spread, DEPTH_STRIDE, net.left.resize_crop)
-                scale_conf = {k: v for k, v in self.conf["scale"].items() if k != "enabled"}
                 found = baseline_from_depth(
-                    matches, depth, K_left, K_right, pose.R, pose.t_direction, pose.distortion, scale_conf
+                    matches,
+                    depth,
+                    K_left,
+                    K_right,
+                    pose.R,
+                    pose.t_direction,
+                    pose.distortion,
+                    self.conf["scale"],
                 )
                 timing["scale"] = (time.perf_counter() - tick) * 1e3
             if found is not None:

@@ -85,6 +85,15 @@ def _normalise(points: np.ndarray, K: np.ndarray) -> np.ndarray:
     return out[:, :2] / out[:, 2:]
 
 
+def ray_angles(normalised_left: np.ndarray, normalised_right: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """The angle (radians) [N] between each match's two rays, given as normalised image points [N x 2] of
+    each camera, with ``X_right = R @ X_left + T``."""
+    ray_l = np.column_stack([normalised_left, np.ones(len(normalised_left))])
+    ray_r = np.column_stack([normalised_right, np.ones(len(normalised_right))]) @ R  # Rᵀ·ray, left frame
+    cos = np.sum(ray_l * ray_r, axis=1) / np.linalg.norm(ray_l, axis=1) / np.linalg.norm(ray_r, axis=1)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
 def sampson_errors(F: np.ndarray, left: np.ndarray, right: np.ndarray) -> np.ndarray:
     """Signed Sampson errors [N] in pixels of matches left, right [N x 2] under F (x_rightᵀ F x_left = 0)."""
     return _sampson(F, left, right)[0]
@@ -432,10 +441,7 @@ def _in_front_share(R, t, left, right, K_left, K_right, min_parallax_rad: float 
     puts them all behind or all in front.
     """
     nl, nr = _normalise(left, K_left), _normalise(right, K_right)
-    ray_l = np.column_stack([nl, np.ones(len(nl))])
-    ray_r = np.column_stack([nr, np.ones(len(nr))]) @ R  # Rᵀ·ray, in the left camera's frame
-    cos = np.sum(ray_l * ray_r, axis=1) / np.linalg.norm(ray_l, axis=1) / np.linalg.norm(ray_r, axis=1)
-    use = np.arccos(np.clip(cos, -1.0, 1.0)) > min_parallax_rad
+    use = ray_angles(nl, nr, R) > min_parallax_rad
     if not use.any():
         return 1.0, 0
     P_left = np.hstack([np.eye(3), np.zeros((3, 1))])

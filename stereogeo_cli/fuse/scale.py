@@ -23,8 +23,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereogeo_cli.fuse.matches import Matches
+from stereogeo_cli.fuse.pose import _normalise, ray_angles
+from stereogeo_cli.geometry import ResizeCrop, undistort_division
+from stereogeo_cli.refine.lm import weighted_median
 
 default_conf = {
+    "enabled": True,  # calibrate takes the baseline this way when the model has a depth head
     # a match counts when its rays meet at this many times the angle a pixel of noise spans (or more)
     "min_parallax_noise": 3.0,
     "noise_px": 0.5,  # the matches' noise when weighing a vote (pixels of the original image)
@@ -41,7 +45,7 @@ class DepthField:
     q: np.ndarray
     log_spread: np.ndarray
     stride: int
-    resize_crop: object
+    resize_crop: ResizeCrop
 
     @property
     def focal_scale(self) -> float:
@@ -79,20 +83,14 @@ class DepthBaseline:
     spread: float  # the votes' weighted median absolute deviation of log B (a diagnosis, not the sigma)
 
 
-def _rays(points: np.ndarray, K: np.ndarray, k: float) -> np.ndarray:
-    """Unit-z rays [N x 3] of pixels seen through a division-model lens k (normalised coordinates of K)."""
-    xy = (np.asarray(points, dtype=float) - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
-    xy = xy / (1.0 + k * np.sum(xy * xy, axis=1, keepdims=True))
-    return np.column_stack([xy, np.ones(len(xy))])
-
-
 def triangulate_unit(
     left: np.ndarray, right: np.ndarray, K_left, K_right, R, t_direction, distortion=(0.0, 0.0)
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Depths in the left camera [N] of matches for |T| = 1 (midpoint method), the angle between each
     match's two rays [N] (radians) and the distance of each match to the epipolar plane (radians)."""
-    x_l = _rays(left, K_left, distortion[0])
-    x_r = _rays(right, K_right, distortion[1])
+    nl = _normalise(undistort_division(left, K_left, distortion[0]), K_left)
+    nr = _normalise(undistort_division(right, K_right, distortion[1]), K_right)
+    x_l, x_r = (np.column_stack([n, np.ones(len(n))]) for n in (nl, nr))
     t = np.asarray(t_direction, dtype=float) / np.linalg.norm(t_direction)
     a = x_l @ np.asarray(R, dtype=float).T  # the left ray in the right camera's frame
     b = x_r
@@ -104,7 +102,7 @@ def triangulate_unit(
         z_left = (ab * bt - bb * at) / det
     unit_a = a / np.linalg.norm(a, axis=1, keepdims=True)
     unit_b = b / np.linalg.norm(b, axis=1, keepdims=True)
-    angle = np.arccos(np.clip(np.sum(unit_a * unit_b, 1), -1.0, 1.0))
+    angle = ray_angles(nl, nr, R)
     normal = np.cross(unit_a, t)
     with np.errstate(divide="ignore", invalid="ignore"):
         off_plane = np.abs(np.sum(normal * unit_b, 1)) / np.linalg.norm(normal, axis=1)
@@ -143,15 +141,9 @@ def baseline_from_depth(
     # each vote's 1-sigma in log: the cell's predicted spread (Laplace scale → sigma) and the triangulation's
     sigma = np.hypot(np.sqrt(2.0) * np.exp(log_spread), noise / angle[usable])
     weight = 1.0 / sigma**2
-    centre = _weighted_median(log_b, weight)
+    centre = weighted_median(log_b, weight)
     return DepthBaseline(
         baseline_m=float(np.exp(centre)),
         votes=int(usable.sum()),
-        spread=_weighted_median(np.abs(log_b - centre), weight),
+        spread=weighted_median(np.abs(log_b - centre), weight),
     )
-
-
-def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
-    order = np.argsort(values)
-    cumulative = np.cumsum(weights[order])
-    return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])

@@ -39,11 +39,7 @@ OUTPUT_SHAPES: dict[str, tuple[str | int, ...]] = {
     **{f"{v}_{k}": dims for v, dims in _FIELD_DIMS.items() for k in _SCALAR_FIELDS},
     "quaternion": ("batch", 4),
     "translation": ("batch", 3),
-    **{
-        f"{v}_{k}": (dims[0], dims[1][:-1] + "8", dims[2][:-1] + "8")
-        for v, dims in _FIELD_DIMS.items()
-        for k in DEPTH_OUTPUTS
-    },
+    **{f"{v}_{k}": ("batch", f"{v}_height/8", f"{v}_width/8") for v in _FIELD_DIMS for k in DEPTH_OUTPUTS},
 }
 
 

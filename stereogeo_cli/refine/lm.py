@@ -248,7 +248,8 @@ def _parse_gravity_prior(prior):
     return g / np.linalg.norm(g), None
 
 
-def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+def weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    """The value below which half the total weight lies."""
     order = np.argsort(values)
     cum = np.cumsum(weights[order])
     return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
@@ -285,8 +286,8 @@ def initial_estimate(
         # circular median: unwrap around the weighted mean direction first
         mean_dir = np.arctan2(np.sum(c_up[near] * np.sin(roll)), np.sum(c_up[near] * np.cos(roll)))
         roll = mean_dir + np.angle(np.exp(1j * (roll - mean_dir)))
-        roll0 = _weighted_median(roll, c_up[near] + 1e-12)
-        pitch0 = _weighted_median(latitude[near], c_lat[near] + 1e-12)
+        roll0 = weighted_median(roll, c_up[near] + 1e-12)
+        pitch0 = weighted_median(latitude[near], c_lat[near] + 1e-12)
         gravity = gravity_from_roll_pitch(roll0, pitch0)
     if focal is None:
         problem = _Problem(x, y, up, np.sin(latitude), c_up, c_lat, cx, cy, conf["huber_scale"], None, None)
