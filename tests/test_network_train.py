@@ -485,3 +485,60 @@ def test_training_the_depth_head_alone_leaves_the_rest_of_the_model(tmp_path):
     b = torch.load(tmp_path / "run" / "latest.pt", weights_only=True)["model"]
     assert all(torch.equal(a[k], b[k]) for k in a if not k.startswith("depth_head"))
     assert any(not torch.equal(a[k], b[k]) for k in a if k.startswith("depth_head"))
+
+
+def test_teacher_loss_holds_the_fields_of_the_masked_pairs_only():
+    """The distillation term: zero where the student's fields are the teacher's, the L1 of the up vectors
+    plus twice the latitudes' where they are not, and blind to the pairs outside the mask."""
+    from stereogeo_cli.network.losses import teacher_loss
+
+    g = torch.Generator().manual_seed(4)
+    out = {}
+    for view in ("left", "right"):
+        up = torch.randn(3, 2, 6, 8, generator=g)
+        out[f"{view}_up"] = up / up.norm(dim=1, keepdim=True)
+        out[f"{view}_latitude"] = torch.rand(3, 6, 8, generator=g) - 0.5
+    mask = torch.tensor([False, True, False])
+    held = {k: v[mask].clone() for k, v in out.items()}
+    assert float(teacher_loss(out, held, mask)) == 0.0
+    moved = {k: v.clone() for k, v in out.items()}
+    moved["left_latitude"][1] += 0.01  # a masked pair: 2 × 0.01 on the left view, averaged over 2 views
+    assert float(teacher_loss(moved, held, mask)) == pytest.approx(0.01, rel=1e-5)
+    moved = {k: v.clone() for k, v in out.items()}
+    moved["left_latitude"][0] += 0.3  # a pair outside the mask
+    moved["right_up"][2] *= -1.0
+    assert float(teacher_loss(moved, held, mask)) == 0.0
+    empty = teacher_loss(out, {k: v[:0] for k, v in out.items()}, torch.zeros(3, dtype=torch.bool))
+    assert float(empty) == 0.0
+
+
+def test_training_with_a_teacher_starts_in_agreement_with_it(tmp_path, tiny_dataset):
+    """A fine-tune held to its own starting point: before the first step the student's fields are the
+    teacher's exactly (the same batch-norm modes), so the first logged distillation loss is 0, and it grows
+    as the student moves. Without a teacher checkpoint the setting is a one-line error."""
+    import shutil
+
+    from stereogeo_cli.network.checkpoint import save_checkpoint
+
+    data = tmp_path / "mixed"
+    shutil.copytree(tiny_dataset, data)
+    records = [json.loads(line) for line in (data / "calib.jsonl").read_text().splitlines()]
+    for record in records[::2]:  # half the pairs as pure rotations, as the panorama crops are
+        record["T"] = [0.0, 0.0, 0.0]
+    (data / "calib.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    torch.manual_seed(5)
+    init = save_checkpoint(tmp_path / "init.pt", StereoGeoNet({"pretrained": False}), training_data="unit")
+    loss = {"teacher_weight": 4.0, "rotation_weight": 0.0, "translation_weight": 0.0}
+    common = {"init": str(init), "train_only": ["decoder", "up_head", "latitude_head"], "loss": loss}
+    missing = _run_train(["--config", str(_config(tmp_path, data, steps=1, **common))])
+    assert missing.returncode == 2 and "teacher" in missing.stderr and "Traceback" not in missing.stderr
+    run = _run_train(
+        [
+            "--config",
+            str(_config(tmp_path, data, steps=4, batch_size=4, teacher=str(init), lr=1e-3, **common)),
+        ]
+    )
+    assert run.returncode == 0, run.stderr
+    log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    held = [r["teacher"] for r in log if r["event"] == "train"]
+    assert len(held) == 4 and held[0] < 1e-6 and max(held[1:]) > 1e-4, held

@@ -45,6 +45,10 @@ default_conf = {
     # The head's point at infinity against the rotation's true one (mean over the cells; smooth L1).
     "infinity_weight": 0.0,
     "infinity_beta": 0.01,
+    # With a teacher (train setting ``teacher``): L1 of the student's up and latitude fields (the latter
+    # ×2, as in the field losses) against the frozen teacher's on the pure-rotation pairs, the crops of
+    # real panoramas: a fine-tune on renders is held to the teacher's reading of real photographs.
+    "teacher_weight": 0.0,
 }
 
 
@@ -188,8 +192,26 @@ def match_losses(out: dict, batch: dict, conf: dict) -> dict[str, torch.Tensor]:
     return losses
 
 
-def compute_losses(out: dict, batch: dict, conf: dict | None = None, with_refiner: bool = True) -> dict:
-    """All loss terms (scalars) and ``total``, for model outputs ``out`` on a training ``batch``."""
+def teacher_loss(out: dict, teacher: dict, mask: torch.Tensor) -> torch.Tensor:
+    """Mean L1 of the student's fields against a frozen teacher's on the samples of ``mask`` [B]:
+    the up vectors' (summed over x, y) plus twice the latitudes' (radians), both views. ``teacher`` holds
+    the teacher's outputs for exactly those samples. Zero (with a gradient path) when ``mask`` is empty."""
+    terms = []
+    for view in ("left", "right"):
+        up, lat = out[f"{view}_up"][mask], out[f"{view}_latitude"][mask]
+        if up.shape[0] == 0:
+            return out[f"{view}_latitude"].sum() * 0.0
+        terms.append((up - teacher[f"{view}_up"]).abs().sum(1).mean())
+        terms.append(2.0 * (lat - teacher[f"{view}_latitude"]).abs().mean())
+    return torch.stack(terms).sum() / 2.0
+
+
+def compute_losses(
+    out: dict, batch: dict, conf: dict | None = None, with_refiner: bool = True, teacher: dict | None = None
+) -> dict:
+    """All loss terms (scalars) and ``total``, for model outputs ``out`` on a training ``batch``.
+
+    ``teacher``: a frozen teacher's outputs on the batch's pure-rotation pairs (``teacher_weight``)."""
     conf = {**default_conf, **(conf or {})}
     losses: dict[str, torch.Tensor] = {}
     height, width = batch["left"].shape[-2:]
@@ -265,7 +287,10 @@ def compute_losses(out: dict, batch: dict, conf: dict | None = None, with_refine
                 nll.append((error * torch.exp(-spread) + spread).mean())
         if nll:
             losses["depth"] = torch.stack(nll).mean()
+    if teacher is not None and conf["teacher_weight"] > 0:
+        losses["teacher"] = teacher_loss(out, teacher, ~batch["has_translation"])
     weights = {
+        "teacher": conf["teacher_weight"],
         "epipolar": conf["epipolar_weight"], "match": conf["match_weight"], "vote": conf["vote_weight"],
         "infinity": conf["infinity_weight"], "depth": conf["depth_weight"],
         "up": conf["up_weight"], "latitude": conf["latitude_weight"], "confidence": conf["confidence_weight"],

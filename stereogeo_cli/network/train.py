@@ -68,6 +68,12 @@ SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
         "Train only the modules with these name prefixes (e.g. pose_head); the rest is frozen, batch norm "
         "statistics included, so a new head can be trained without changing the fields.",
     ),
+    "teacher": (
+        None,
+        "A checkpoint held frozen as a teacher: with loss teacher_weight > 0 the student's fields are held "
+        "to its fields on the crops of real panoramas (pure-rotation pairs), so a fine-tune on renders "
+        "keeps the teacher's reading of real photographs (distillation, 'learning without forgetting').",
+    ),
     "init": (
         None,
         "Start from the weights of this checkpoint (e.g. models/stereogeo.pt) instead of ImageNet; every "
@@ -286,6 +292,16 @@ def train(conf: dict) -> dict:
         step, best = int(checkpoint["step"]), float(checkpoint.get("best", math.inf))
         log("resume", step=step)
     set_training(model, prefixes)
+    teacher = None
+    if conf["loss"].get("teacher_weight", 0) > 0:
+        if not conf["teacher"]:
+            raise StereoGeoError('loss teacher_weight > 0 needs a teacher checkpoint ("teacher": PATH)')
+        teacher, _ = load_checkpoint(conf["teacher"])
+        teacher.requires_grad_(False)
+        # The teacher runs in the student's modes (batch statistics where the student trains), on the
+        # whole batch, so before the first step the two agree exactly and the loss holds the function.
+        set_training(teacher, prefixes)
+        log("teacher", checkpoint=str(conf["teacher"]))
     net: torch.nn.Module = model
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(model)
@@ -344,7 +360,14 @@ def train(conf: dict) -> dict:
             for group in optimizer.param_groups:
                 group["lr"] = lr_at(step, conf)
             outputs = net(batch["left"], batch["right"])
-            losses = compute_losses(outputs, batch, conf["loss"], with_refiner=step >= conf["refiner_start"])
+            held = None
+            if teacher is not None:
+                rotation_only = ~batch["has_translation"]
+                with torch.no_grad():
+                    held = {k: v[rotation_only] for k, v in teacher(batch["left"], batch["right"]).items()}
+            losses = compute_losses(
+                outputs, batch, conf["loss"], with_refiner=step >= conf["refiner_start"], teacher=held
+            )
             optimizer.zero_grad(set_to_none=True)
             losses["total"].backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(trained, conf["clip_grad"])
