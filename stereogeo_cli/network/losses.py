@@ -193,16 +193,16 @@ def match_losses(out: dict, batch: dict, conf: dict) -> dict[str, torch.Tensor]:
 
 
 def teacher_loss(out: dict, teacher: dict, mask: torch.Tensor) -> torch.Tensor:
-    """Mean L1 of the student's fields against a frozen teacher's on the samples of ``mask`` [B]:
-    the up vectors' (summed over x, y) plus twice the latitudes' (radians), both views. ``teacher`` holds
-    the teacher's outputs for exactly those samples. Zero (with a gradient path) when ``mask`` is empty."""
+    """Mean L1 of the student's fields against a frozen teacher's (both outputs of the whole batch) on the
+    samples of ``mask`` [B]: the up vectors' (summed over x, y) plus twice the latitudes' (radians), both
+    views. Zero (with a gradient path) when ``mask`` is empty."""
+    if not mask.any():
+        return out["left_latitude"].sum() * 0.0
     terms = []
     for view in ("left", "right"):
-        up, lat = out[f"{view}_up"][mask], out[f"{view}_latitude"][mask]
-        if up.shape[0] == 0:
-            return out[f"{view}_latitude"].sum() * 0.0
-        terms.append((up - teacher[f"{view}_up"]).abs().sum(1).mean())
-        terms.append(2.0 * (lat - teacher[f"{view}_latitude"]).abs().mean())
+        up, lat = f"{view}_up", f"{view}_latitude"
+        terms.append((out[up][mask] - teacher[up][mask]).abs().sum(1).mean())
+        terms.append(2.0 * (out[lat][mask] - teacher[lat][mask]).abs().mean())
     return torch.stack(terms).sum() / 2.0
 
 
@@ -211,7 +211,8 @@ def compute_losses(
 ) -> dict:
     """All loss terms (scalars) and ``total``, for model outputs ``out`` on a training ``batch``.
 
-    ``teacher``: a frozen teacher's outputs on the batch's pure-rotation pairs (``teacher_weight``)."""
+    ``teacher``: a frozen teacher's outputs on the batch, held to on its pure-rotation pairs
+    (``teacher_weight``)."""
     conf = {**default_conf, **(conf or {})}
     losses: dict[str, torch.Tensor] = {}
     height, width = batch["left"].shape[-2:]

@@ -362,9 +362,8 @@ def train(conf: dict) -> dict:
             outputs = net(batch["left"], batch["right"])
             held = None
             if teacher is not None:
-                rotation_only = ~batch["has_translation"]
                 with torch.no_grad():
-                    held = {k: v[rotation_only] for k, v in teacher(batch["left"], batch["right"]).items()}
+                    held = teacher(batch["left"], batch["right"])
             losses = compute_losses(
                 outputs, batch, conf["loss"], with_refiner=step >= conf["refiner_start"], teacher=held
             )
