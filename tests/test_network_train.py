@@ -542,3 +542,67 @@ def test_training_with_a_teacher_starts_in_agreement_with_it(tmp_path, tiny_data
     log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
     held = [r["teacher"] for r in log if r["event"] == "train"]
     assert len(held) == 4 and held[0] < 1e-6 and max(held[1:]) > 1e-4, held
+
+
+def test_wide_batches_draw_only_from_the_wide_pool_at_its_share_and_resume():
+    """Wide frames (indices 80–99) fill their share of the batches, at wide sizes (indices 3–4), and never
+    an ordinary batch; ranks stay disjoint and a resumed stream is the same stream."""
+    a = SizedBatches(100, 4, 3, seed=2, rank=0, world=2, wide=(80, 2, 0.4))
+    b = SizedBatches(100, 4, 3, seed=2, rank=1, world=2, wide=(80, 2, 0.4))
+    epoch = a.epoch_batches(0)
+    assert len(epoch) == a.per_epoch and a.n_ordinary == 20 and a.n_wide == 14  # 20 × 0.4 / 0.6, even
+    wide = [batch for batch in epoch if batch[0][1] >= 3]
+    for batch in epoch:
+        is_wide = batch[0][1] >= 3
+        assert len({s for _, s, _ in batch}) == 1 and batch[0][1] < 5
+        assert all((i >= 80) == is_wide for i, _, _ in batch)
+    assert 0 < len(wide) < len(epoch)
+    assert not {i for x in epoch if x[0][1] < 3 for i, *_ in x} & {
+        i for x in b.epoch_batches(0) if x[0][1] < 3 for i, *_ in x
+    }
+    ia = iter(a)
+    first = [next(ia) for _ in range(40)]
+    resumed = iter(SizedBatches(100, 4, 3, seed=2, rank=0, world=2, start_batch=23, wide=(80, 2, 0.4)))
+    assert [next(resumed) for _ in range(17)] == first[23:]
+    # without wide frames the stream is the one every earlier run saw
+    plain = SizedBatches(100, 4, 3, seed=1)
+    rng = np.random.default_rng([1, 0])
+    order, sizes = rng.permutation(100)[:100], rng.integers(3, size=25)
+    assert plain.epoch_batches(0)[3] == [(int(i), int(sizes[3]), 0) for i in order[12:16]]
+
+
+def test_training_with_wide_frames_cuts_their_batches_to_wide_sizes(tmp_path, tiny_dataset):
+    """A run with wide_data trains on both pools at the sampler's share, the teacher sitting out the wide
+    batches, and records the wide data in the checkpoint; a wide_share of 1 is a one-line error."""
+    from stereogeo_cli.network.checkpoint import save_checkpoint
+    from stereogeo_cli.synth.config import SynthConfig
+    from stereogeo_cli.synth.dataset import make_dataset
+
+    wide = tmp_path / "wide"
+    make_dataset(wide, 6, 9, SynthConfig(short_side=64, aspects=(3.0,), portrait_share=0.0), workers=1,
+                 progress=False)  # fmt: skip
+    assert cv2.imread(str(wide / "left" / "000000.png")).shape[:2] == (64, 192)
+    # Every wide pair a pure rotation, every ordinary pair not: a teacher run on a wide batch would show.
+    records = [json.loads(line) for line in (wide / "calib.jsonl").read_text().splitlines()]
+    (wide / "calib.jsonl").write_text(
+        "".join(json.dumps({**r, "T": [0.0, 0.0, 0.0]}) + "\n" for r in records)
+    )
+    torch.manual_seed(6)
+    init = save_checkpoint(tmp_path / "init.pt", StereoGeoNet({"pretrained": False}), training_data="unit")
+    common = {
+        "wide_data": [str(wide)], "wide_sizes": [[192, 64]], "wide_share": 0.5, "init": str(init),
+        "teacher": str(init), "train_only": ["decoder", "up_head", "latitude_head"], "lr": 1e-3,
+        "loss": {"teacher_weight": 4.0, "rotation_weight": 0.0, "translation_weight": 0.0},
+    }  # fmt: skip
+    bad = _run_train(["--config", str(_config(tmp_path, tiny_dataset, **common)), "--wide-share", "1"])
+    assert bad.returncode == 2 and "wide_share" in bad.stderr and "Traceback" not in bad.stderr
+    run = _run_train(["--config", str(_config(tmp_path, tiny_dataset, steps=8, **common))])
+    assert run.returncode == 0, run.stderr
+    log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    steps = [r for r in log if r["event"] == "train"]
+    sampler = SizedBatches(14, 2, 2, seed=0, wide=(8, 1, 0.5))
+    draw = [batch[0][1] == 2 for _ in range(2) for batch in sampler.epoch_batches(_)][:8]
+    assert [r["wide_batches"] for r in steps] == list(np.cumsum(draw)) and 0 < sum(draw) < 8
+    assert all(r["teacher"] == 0.0 for r in steps)
+    saved = torch.load(tmp_path / "run" / "latest.pt", weights_only=True)
+    assert f"{wide} (wide)" in saved["training_data"]

@@ -19,6 +19,7 @@ from stereogeo_cli.geometry import ResizeCrop, apply_resize_crop
 from stereogeo_cli.network.runtime import DEPTH_STRIDE, cell_pixel_coordinates
 
 TRAIN_SIZES = ((256, 192), (320, 192), (224, 224), (192, 256))  # (width, height): 4:3, 5:3, 1:1, 3:4
+WIDE_SIZES = ((384, 192), (448, 192), (512, 192), (608, 192))  # 2:1, 2.33:1, 2.67:1, 3.17:1 (train wide_data)
 
 
 def cover_crop(width: int, height: int, out_width: int, out_height: int) -> ResizeCrop:
@@ -272,31 +273,59 @@ class TrainingPairs(torch.utils.data.Dataset):
                 for view in ("left", "right"):
                     sample[view] = change_sharpness(sample[view], sigma, amount)
         sample["index"] = torch.tensor(index)
+        sample["size_index"] = torch.tensor(size_index)
         return sample
 
 
 class SizedBatches(torch.utils.data.Sampler):
     """Batches of one training size each, shuffled per epoch from a seed; split across ranks.
 
-    Items are (index, size index, epoch).
+    Items are (index, size index, epoch). ``n_sizes`` is the number of ordinary sizes.
+
+    ``wide`` = (first wide index, number of wide sizes, share): the indices from the first wide one on
+    form a pool of their own, drawn only into wide batches, whose size indices follow the ordinary ones;
+    wide batches are ``share`` of all (the wide pool is cycled if it is smaller than that needs). Without
+    ``wide`` the stream is the one every run before wide frames saw.
 
     Iteration starts at ``start_batch`` of the stream of epochs, so a resumed run sees exactly the
     batches it would have seen without the interruption.
     """
 
     def __init__(self, count: int, batch_size: int, n_sizes: int, seed: int, rank: int = 0, world: int = 1,
-                 start_batch: int = 0):  # fmt: skip
+                 start_batch: int = 0, wide: tuple[int, int, float] | None = None):  # fmt: skip
         self.count, self.batch_size, self.n_sizes = count, batch_size, n_sizes
         self.seed, self.rank, self.world, self.start_batch = seed, rank, world, start_batch
-        self.per_epoch = count // (batch_size * world)
-        if self.per_epoch < 1:
-            raise ValueError(f"{count} pairs are too few for batches of {batch_size} on {world} processes")
+        self.wide = wide
+        ordinary = count if wide is None else wide[0]
+        self.n_ordinary = ordinary // (batch_size * world) * world  # batches per epoch, all ranks
+        self.n_wide = 0
+        if wide is not None:
+            if not 0.0 <= wide[2] < 1.0 or count - ordinary < 1:
+                raise ValueError("wide batches need a share in [0, 1) and at least one wide pair")
+            self.n_wide = round(self.n_ordinary * wide[2] / (1.0 - wide[2]) / world) * world
+        self.per_epoch = (self.n_ordinary + self.n_wide) // world
+        if self.n_ordinary < 1:
+            raise ValueError(f"{ordinary} pairs are too few for batches of {batch_size} on {world} processes")
 
     def epoch_batches(self, epoch: int) -> list[list[tuple[int, int, int]]]:
         rng = np.random.default_rng([self.seed, epoch])
-        order = rng.permutation(self.count)[: self.per_epoch * self.batch_size * self.world]
-        sizes = rng.integers(self.n_sizes, size=self.per_epoch * self.world)
-        batches = order.reshape(-1, self.batch_size)
+        if self.wide is None:
+            order = rng.permutation(self.count)[: self.per_epoch * self.batch_size * self.world]
+            sizes = rng.integers(self.n_sizes, size=self.per_epoch * self.world)
+            batches = order.reshape(-1, self.batch_size)
+        else:
+            first, n_wide_sizes, _ = self.wide
+            ordinary = rng.permutation(first)[: self.n_ordinary * self.batch_size]
+            need, pool = self.n_wide * self.batch_size, self.count - first
+            cycles = [rng.permutation(pool) for _ in range(-(-need // pool))] if need else []
+            wide = first + np.concatenate(cycles or [np.zeros(0, dtype=int)])[:need]
+            batches = np.concatenate([ordinary, wide]).reshape(-1, self.batch_size)
+            sizes = np.concatenate([
+                rng.integers(self.n_sizes, size=self.n_ordinary),
+                self.n_sizes + rng.integers(n_wide_sizes, size=self.n_wide),
+            ])  # fmt: skip
+            shuffle = rng.permutation(len(batches))
+            batches, sizes = batches[shuffle], sizes[shuffle]
         mine = range(self.rank, len(batches), self.world)
         return [[(int(i), int(sizes[b]), epoch) for i in batches[b]] for b in mine]
 

@@ -22,7 +22,14 @@ import torch.distributed as dist
 
 from stereogeo_cli.errors import StereoGeoError
 from stereogeo_cli.network.checkpoint import init_from_checkpoint, load_checkpoint, save_checkpoint
-from stereogeo_cli.network.data import TRAIN_SIZES, FolderPairs, RenderedPairs, SizedBatches, TrainingPairs
+from stereogeo_cli.network.data import (
+    TRAIN_SIZES,
+    WIDE_SIZES,
+    FolderPairs,
+    RenderedPairs,
+    SizedBatches,
+    TrainingPairs,
+)
 from stereogeo_cli.network.losses import compute_losses
 from stereogeo_cli.network.losses import default_conf as loss_defaults
 from stereogeo_cli.network.model import OUTPUT_STRIDE, StereoGeoNet
@@ -38,6 +45,16 @@ SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
     "steps": (6000, "Optimiser steps in all."),
     "batch_size": (8, "Pairs per step and process."),
     "sizes": ([list(s) for s in TRAIN_SIZES], "Training sizes (width, height); one per batch."),
+    "wide_data": (
+        [],
+        "Dataset folders of wide frames (make-data --aspects 2:1,12:5,33:10): they fill wide_share of the "
+        "batches, cut to wide_sizes, and no other batch draws from them.",
+    ),
+    "wide_sizes": (
+        [list(s) for s in WIDE_SIZES],
+        "Training sizes (width, height) of the wide batches; one per batch.",
+    ),
+    "wide_share": (0.3, "Share of the batches that are wide (when wide_data is given)."),
     "grey_share": (
         0.0,
         "Share of training pairs shown in grey, both views alike (as mono cameras give them).",
@@ -306,11 +323,16 @@ def train(conf: dict) -> dict:
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(model)
 
+    sources, wide_sources = _sources(conf), [FolderPairs(d) for d in conf["wide_data"]]
+    sizes = list(conf["sizes"]) + (list(conf["wide_sizes"]) if wide_sources else [])
     dataset = TrainingPairs(
-        _sources(conf), conf["sizes"], conf["grey_share"], conf["seed"], conf["sharpness_share"]
+        sources + wide_sources, sizes, conf["grey_share"], conf["seed"], conf["sharpness_share"]
     )
+    wide = None
+    if wide_sources:
+        wide = (sum(len(s) for s in sources), len(conf["wide_sizes"]), float(conf["wide_share"]))
     sampler = SizedBatches(
-        len(dataset), conf["batch_size"], len(dataset.sizes), conf["seed"], rank, world, step
+        len(dataset), conf["batch_size"], len(conf["sizes"]), conf["seed"], rank, world, step, wide
     )
     loader = torch.utils.data.DataLoader(
         dataset, batch_sampler=sampler, num_workers=conf["workers"],
@@ -318,7 +340,9 @@ def train(conf: dict) -> dict:
     )  # fmt: skip
     val = FolderPairs(conf["val"]) if conf["val"] and rank == 0 else None
     training_data = ", ".join(
-        [str(d) for d in conf["data"]] + ([f"{conf['render']} rendered"] if conf["render"] else [])
+        [str(d) for d in conf["data"]]
+        + ([f"{conf['render']} rendered"] if conf["render"] else [])
+        + [f"{d} (wide)" for d in conf["wide_data"]]
     )
     version = conf["model_version"] or out.name
 
@@ -349,7 +373,7 @@ def train(conf: dict) -> dict:
         TextColumn("step {task.completed}/{task.total}"), BarColumn(), TextColumn("{task.fields[info]}"),
         TimeRemainingColumn(),
     )  # fmt: skip
-    last_save, started, seen = time.monotonic(), time.monotonic(), 0
+    last_save, started, seen, wide_seen = time.monotonic(), time.monotonic(), 0, 0
     running: dict[str, float] = {}
     metrics: dict[str, float] = {}
     iterator = iter(loader)
@@ -360,8 +384,10 @@ def train(conf: dict) -> dict:
             for group in optimizer.param_groups:
                 group["lr"] = lr_at(step, conf)
             outputs = net(batch["left"], batch["right"])
-            held = None
-            if teacher is not None:
+            held, is_wide = None, int(batch["size_index"][0]) >= len(conf["sizes"])
+            wide_seen += is_wide
+            # A wide batch has no teacher: the teacher never saw wide frames (that is what it is fixing).
+            if teacher is not None and not is_wide:
                 with torch.no_grad():
                     held = teacher(batch["left"], batch["right"])
             losses = compute_losses(
@@ -379,7 +405,8 @@ def train(conf: dict) -> dict:
             bar.update(task, completed=step, info=f"loss {running['total']:.3f}")
             if step % conf["log_every"] == 0 or step == 1:
                 rate = seen / max(time.monotonic() - started, 1e-9)
-                log("train", step=step, lr=lr_at(step, conf), pairs_per_s=rate, **running)
+                extra = {"wide_batches": wide_seen} if wide_sources else {}
+                log("train", step=step, lr=lr_at(step, conf), pairs_per_s=rate, **extra, **running)
             if val is not None and (step % conf["val_every"] == 0 or step == conf["steps"]):
                 metrics = validate(model, val, conf["val_count"], int(conf["input_short_side"]))
                 set_training(model, prefixes)
@@ -410,7 +437,7 @@ def parse_args(argv: list[str] | None = None) -> dict:
     parser.add_argument("--resume", action="store_true", help="continue from OUT/latest.pt if it exists")
     parser.add_argument("--dump-replica", help=argparse.SUPPRESS)
     for key, value in default_conf.items():
-        if key in ("data", "sizes", "decay_at", "loss", "model", "train_only"):
+        if key in ("data", "sizes", "wide_data", "wide_sizes", "decay_at", "loss", "model", "train_only"):
             continue
         kind = type(value) if value is not None else str
         parser.add_argument(f"--{key.replace('_', '-')}", type=kind, default=None, help=SETTINGS[key][1])
@@ -428,6 +455,8 @@ def parse_args(argv: list[str] | None = None) -> dict:
     for share in ("grey_share", "sharpness_share"):
         if not 0.0 <= float(conf[share]) <= 1.0:
             raise StereoGeoError(f"{share} must be between 0 and 1, got {conf[share]}")
+    if not 0.0 <= float(conf["wide_share"]) < 1.0:
+        raise StereoGeoError(f"wide_share must be at least 0 and below 1, got {conf['wide_share']}")
     return conf
 
 
