@@ -542,6 +542,15 @@ def test_training_with_a_teacher_starts_in_agreement_with_it(tmp_path, tiny_data
     log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
     held = [r["teacher"] for r in log if r["event"] == "train"]
     assert len(held) == 4 and held[0] < 1e-6 and max(held[1:]) > 1e-4, held
+    # A resumed run must keep its teacher: a changed file (say the model it was fine-tuning from, replaced
+    # by this run's result) is a one-line error, not a silent change of the loss.
+    torch.manual_seed(7)
+    save_checkpoint(init, StereoGeoNet({"pretrained": False}), training_data="another")
+    config = _config(tmp_path, data, steps=6, batch_size=4, teacher=str(init), lr=1e-3, **common)
+    changed = _run_train(["--config", str(config), "--resume"])
+    assert changed.returncode == 2 and "Traceback" not in changed.stderr
+    assert "is not the file this run started with" in changed.stderr
+    assert len(changed.stderr.strip().splitlines()[-1]) < 300
 
 
 def test_wide_batches_draw_only_from_the_wide_pool_at_its_share_and_resume():

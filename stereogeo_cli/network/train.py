@@ -138,6 +138,16 @@ def _agree(flag: bool, world: int) -> bool:
     return bool(value.item())
 
 
+def _sha256(path: str | os.PathLike) -> str:
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def _to_float(losses: dict) -> dict[str, float]:
     return {k: float(v.detach()) for k, v in losses.items()}
 
@@ -293,7 +303,7 @@ def train(conf: dict) -> dict:
         for name, param in model.named_parameters():
             param.requires_grad_(name.startswith(prefixes))
     optimizer = torch.optim.AdamW(trained, lr=conf["lr"], weight_decay=conf["weight_decay"])
-    step, best = 0, math.inf
+    step, best, checkpoint = 0, math.inf, {}
     if conf["init"] and not (conf.get("resume") and latest.is_file()):
         fresh = init_from_checkpoint(model, conf["init"])
         log(
@@ -309,10 +319,18 @@ def train(conf: dict) -> dict:
         step, best = int(checkpoint["step"]), float(checkpoint.get("best", math.inf))
         log("resume", step=step)
     set_training(model, prefixes)
-    teacher = None
+    teacher, teacher_sha256 = None, None
     if conf["loss"].get("teacher_weight", 0) > 0:
         if not conf["teacher"]:
             raise StereoGeoError('loss teacher_weight > 0 needs a teacher checkpoint ("teacher": PATH)')
+        teacher_sha256 = _sha256(conf["teacher"])
+        started_with = checkpoint.get("teacher_sha256")
+        if started_with and started_with != teacher_sha256:
+            # e.g. a teacher at models/stereogeo.pt, replaced by the model this run was fine-tuning from
+            raise StereoGeoError(
+                f"the teacher {conf['teacher']} is not the file this run started with (sha256 "
+                f"{teacher_sha256[:12]}, was {started_with[:12]}): resume with that file as the teacher"
+            )
         teacher, _ = load_checkpoint(conf["teacher"])
         teacher.requires_grad_(False)
         # The teacher runs in the student's modes (batch statistics where the student trains), on the
@@ -353,6 +371,7 @@ def train(conf: dict) -> dict:
             path, model, step, optimizer=optimizer.state_dict(), best=best, metrics=metrics or {},
             train_conf=json.loads(json.dumps(conf, default=str)), training_data=training_data,
             model_version=version, input_short_side=int(conf["input_short_side"]),
+            **({"teacher_sha256": teacher_sha256} if teacher_sha256 else {}),
         )  # fmt: skip
 
     log(
