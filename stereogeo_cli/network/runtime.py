@@ -79,6 +79,15 @@ def cell_pixel_coordinates(height: int, width: int, stride: int) -> tuple[np.nda
     return x, y
 
 
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 of a file (hex), read in 1 MiB blocks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
 class FieldNetwork:
     """The exported StereoGeoNet in one ONNX Runtime session (CPU).
 
@@ -125,11 +134,7 @@ class FieldNetwork:
     def model_sha256(self) -> str:
         """SHA-256 of the model file (hex), computed once."""
         if self._sha256 is None:
-            digest = hashlib.sha256()
-            with open(self.path, "rb") as f:
-                for chunk in iter(lambda: f.read(1 << 20), b""):
-                    digest.update(chunk)
-            self._sha256 = digest.hexdigest()
+            self._sha256 = file_sha256(self.path)
         return self._sha256
 
     def prepare(self, image_rgb: np.ndarray) -> tuple[np.ndarray, ResizeCrop]:

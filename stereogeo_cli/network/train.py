@@ -33,6 +33,7 @@ from stereogeo_cli.network.data import (
 from stereogeo_cli.network.losses import compute_losses
 from stereogeo_cli.network.losses import default_conf as loss_defaults
 from stereogeo_cli.network.model import OUTPUT_STRIDE, StereoGeoNet
+from stereogeo_cli.network.runtime import file_sha256
 
 SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
     "data": ([], "Dataset folders (left/, right/, calib.jsonl) to train on."),
@@ -136,16 +137,6 @@ def _agree(flag: bool, world: int) -> bool:
     value = torch.tensor([int(flag)])
     dist.broadcast(value, 0)
     return bool(value.item())
-
-
-def _sha256(path: str | os.PathLike) -> str:
-    import hashlib
-
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def _to_float(losses: dict) -> dict[str, float]:
@@ -323,7 +314,7 @@ def train(conf: dict) -> dict:
     if conf["loss"].get("teacher_weight", 0) > 0:
         if not conf["teacher"]:
             raise StereoGeoError('loss teacher_weight > 0 needs a teacher checkpoint ("teacher": PATH)')
-        teacher_sha256 = _sha256(conf["teacher"])
+        teacher_sha256 = file_sha256(conf["teacher"])
         started_with = checkpoint.get("teacher_sha256")
         if started_with and started_with != teacher_sha256:
             # e.g. a teacher at models/stereogeo.pt, replaced by the model this run was fine-tuning from
