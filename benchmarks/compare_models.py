@@ -1,0 +1,90 @@
+"""Two models through `calibrate`, pair by pair: which errors got better, which worse, and by how much.
+
+    python benchmarks/compare_models.py MODEL_A MODEL_B DATASET [DATASET ...] [--threads N]
+
+Small real sets (1–29 pairs of one scene type each) move their medians with single pairs; pooling every
+pair's errors is steadier. For each error (per camera: vFoV, roll and pitch where gravity is known; per
+pair: R and the translation direction) it prints how many of the pooled errors B has better and worse
+than A, and the geometric mean of the ratios B / A (errors below a floor are raised to it, so that two
+tiny errors do not count as a large ratio), then each dataset's medians A → B.
+"""
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from stereogeo_cli.evaluate import evaluate_dataset
+from stereogeo_cli.pipeline import Calibrator
+
+# error → (row keys, floor): the floors are well below what either model reaches on any set
+ERRORS = {
+    "vFoV (°)": (("left_vfov_error_deg", "right_vfov_error_deg"), 0.1),
+    "roll (°)": (("left_roll_error_deg", "right_roll_error_deg"), 0.1),
+    "pitch (°)": (("left_pitch_error_deg", "right_pitch_error_deg"), 0.1),
+    "R (°)": (("rotation_error_deg",), 0.01),
+    "t direction (°)": (("direction_error_deg",), 0.05),
+}
+
+
+def paired(rows_a: dict, rows_b: dict, keys: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The errors of both models on the pairs (and cameras) both calibrated, in one order."""
+    a, b = [], []
+    for name, row in rows_a.items():
+        other = rows_b.get(name)
+        for key in keys:
+            if other is not None and row.get(key) is not None and other.get(key) is not None:
+                a.append(row[key])
+                b.append(other[key])
+    return np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+
+
+def compare(results_a: dict, results_b: dict) -> list[str]:
+    """Markdown lines comparing two runs: ``{dataset: {pair id: row}}`` each."""
+    lines = [
+        "| error | n | B better | B worse | geometric mean B / A | medians A → B |",
+        "|---|---|---|---|---|---|",
+    ]
+    for label, (keys, floor) in ERRORS.items():
+        pooled_a, pooled_b, medians = [], [], []
+        for dataset, rows_a in results_a.items():
+            a, b = paired(rows_a, results_b.get(dataset, {}), keys)
+            if len(a):
+                pooled_a.append(a)
+                pooled_b.append(b)
+                medians.append(f"{dataset} {np.median(a):.2f} → {np.median(b):.2f}")
+        if not pooled_a:
+            continue
+        a, b = np.concatenate(pooled_a), np.concatenate(pooled_b)
+        ratio = float(np.exp(np.mean(np.log(np.maximum(b, floor) / np.maximum(a, floor)))))
+        lines.append(
+            f"| {label} | {len(a)} | {int(np.sum(b < a))} | {int(np.sum(b > a))} | {ratio:.3f} | "
+            f"{'; '.join(medians)} |"
+        )
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("model_a")
+    parser.add_argument("model_b")
+    parser.add_argument("datasets", nargs="+")
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    results = []
+    for model in (args.model_a, args.model_b):
+        calibrator = Calibrator(model, threads=args.threads)
+        results.append(
+            {
+                Path(d).name: {row["id"]: row for row in evaluate_dataset(d, calibrator)["pairs"]}
+                for d in args.datasets
+            }
+        )
+    print(f"A = {args.model_a}, B = {args.model_b}\n")
+    print("\n".join(compare(*results)))
+
+
+if __name__ == "__main__":
+    main()
