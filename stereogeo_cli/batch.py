@@ -195,6 +195,7 @@ class PairJob:
     keep_evidence: bool = False  # keep what --same-rig needs (focal, gravity, pose, matches)
     pinhole: bool = False  # --pinhole: fit no lens distortion
     lines: bool = True  # --no-lines: gravity from the fields alone, no vertical line segments
+    exif: bool = True  # --no-exif: no EXIF focal length as a prior
 
 
 @dataclass
@@ -214,6 +215,9 @@ class RigEvidence:
     matches_left: np.ndarray
     matches_right: np.ndarray
     distortion: tuple[float, float] = (0.0, 0.0)  # division-model k per camera, for the refined focal
+    # per camera the EXIF prior (focal, sigma) in pixels that the pair's focal took in, or None; where there
+    # is one, ``focal`` and ``focal_sigma`` are the fields' own, so that --same-rig counts the prior once
+    focal_prior: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None)
 
 
 @dataclass
@@ -251,11 +255,25 @@ class PairOutcome:
 def _evidence(result) -> RigEvidence:
     matches = result.matches
     empty = np.zeros((0, 2))
+    priors = result.calibration.extra_report.get("focal_prior") or [None, None]
+    focal, sigma, prior = [], [], []
+    for fit, entry in zip((result.left, result.right), priors, strict=True):
+        fields_sigma = None if entry is None else entry.get("fields_sigma_px")
+        if entry is None or fields_sigma is None:
+            focal.append(fit.focal_px)
+            sigma.append(fit.sigma["focal_px"])
+            prior.append(None)
+        else:  # the fields' own reading, scaled by what the matches did to the combined focal
+            scale = fit.focal_px / entry["combined_focal_px"]
+            focal.append(entry["fields_focal_px"] * scale)
+            sigma.append(fields_sigma * scale)
+            prior.append((entry["focal_px"], entry["sigma_px"]))
     return RigEvidence(
         size_left=(result.left.width, result.left.height),
         size_right=(result.right.width, result.right.height),
-        focal=(result.left.focal_px, result.right.focal_px),
-        focal_sigma=(result.left.sigma["focal_px"], result.right.sigma["focal_px"]),
+        focal=(focal[0], focal[1]),
+        focal_sigma=(sigma[0], sigma[1]),
+        focal_prior=(prior[0], prior[1]),
         gravity_left=np.asarray(result.left.gravity_up, dtype=float),
         gravity_right=np.asarray(result.right.gravity_up, dtype=float),
         R=np.asarray(result.pose.R, dtype=float),
@@ -271,14 +289,16 @@ def _evidence(result) -> RigEvidence:
 def calibrate_pair(calibrator, entry: PairEntry, job: PairJob) -> PairOutcome:
     """Load, calibrate and (if ``job.out_dir``) write one pair; any failure becomes a "failed" outcome."""
     from stereogeo_cli.io import load_pair, write_calibration
+    from stereogeo_cli.io.exif import exif_focals
 
     start = time.perf_counter()
     outcome = PairOutcome(entry.name, entry.left, entry.right, "failed")
     try:
         left, right = load_pair(entry.left, entry.right)
         result = calibrator.calibrate(
-            left, right, baseline_m=job.baseline_m, focal_left=job.focal_left, focal_right=job.focal_right
-        )
+            left, right, baseline_m=job.baseline_m, focal_left=job.focal_left, focal_right=job.focal_right,
+            exif=exif_focals((entry.left, entry.right), (left, right)) if job.exif else None,
+        )  # fmt: skip
         if job.out_dir is not None:
             write_calibration(job.out_dir / entry.name, result.calibration, job.formats)
         outcome.status, outcome.report = "ok", _json_safe(result.report())
@@ -677,6 +697,7 @@ def run_batch(
     progress: bool = False,
     pinhole: bool = False,
     lines: bool = True,
+    exif: bool = True,
 ) -> BatchSummary:
     """Calibrate every pair of ``folder`` into ``out_dir/<name>/``, write the summaries (and ``rig/``).
 
@@ -686,6 +707,7 @@ def run_batch(
         progress: a Rich progress bar on stderr (else one plain line per pair there).
         pinhole: the images have no lens distortion (rectified or undistorted): none is fitted.
         lines: fit each camera's gravity to the image's vertical line segments too (docs/refine.md).
+        exif: take each photo's EXIF focal length as a prior (stereogeo_cli/io/exif.py).
     Raises:
         StereoGeoError: no pairs (exit code 2), or a model that cannot be loaded. A pair that fails does
         not raise: its outcome is "failed". A failed joint calibration is returned in ``rig_error``.
@@ -706,8 +728,9 @@ def run_batch(
     if workers <= 1 and any(e.problem is None for e in entries):
         calibrator()  # a bad model fails here, before any pair
     job = PairJob(
-        out_dir, formats, baseline_m, model, threads, keep_evidence=same_rig, pinhole=pinhole, lines=lines
-    )
+        out_dir, formats, baseline_m, model, threads, keep_evidence=same_rig, pinhole=pinhole, lines=lines,
+        exif=exif,
+    )  # fmt: skip
     pairs = [e for e in entries if e.problem is None]
     outcomes_by_name: dict[str, PairOutcome] = {}
     with _Progress(progress) as bar:
@@ -740,6 +763,19 @@ def run_batch(
     return summary
 
 
+def _with_exif_prior(fields: FocalEstimate, priors: list[tuple[float, float]]) -> FocalEstimate:
+    """The rig's focal from its pairs' fields, combined once with their photos' EXIF focal (the median of
+    their priors, with one prior's sigma: the photos of one camera share the error of its tags)."""
+    from stereogeo_cli.refine import combine_focal
+
+    if not priors:
+        return fields
+    prior = float(np.median([p[0] for p in priors]))
+    sigma_rel = float(np.median([p[1] / p[0] for p in priors]))
+    focal, sigma = combine_focal(fields.focal_px, fields.sigma_px, prior, prior * sigma_rel)
+    return replace(fields, focal_px=focal, sigma_px=sigma)
+
+
 def _same_rig(outcomes, job: PairJob, workers, calibrator, bar: _Progress, baseline_m):
     start = time.perf_counter()
     ok = [o for o in outcomes if o.status == "ok"]
@@ -747,13 +783,16 @@ def _same_rig(outcomes, job: PairJob, workers, calibrator, bar: _Progress, basel
         raise CalibrationFailed("--same-rig: no pair was calibrated, so there is nothing to combine")
     _same_sizes(ok)
     focals = tuple(
-        combine_focals([o.evidence.focal[i] for o in ok], [o.evidence.focal_sigma[i] for o in ok])
+        _with_exif_prior(
+            combine_focals([o.evidence.focal[i] for o in ok], [o.evidence.focal_sigma[i] for o in ok]),
+            [o.evidence.focal_prior[i] for o in ok if o.evidence.focal_prior[i] is not None],
+        )
         for i in (0, 1)
     )
     second_job = PairJob(
         None, job.formats, job.baseline_m, job.model, job.threads,
         focal_left=focals[0].focal_px, focal_right=focals[1].focal_px, keep_evidence=True,
-        pinhole=job.pinhole, lines=job.lines,
+        pinhole=job.pinhole, lines=job.lines, exif=job.exif,
     )  # fmt: skip
     bar.stage("same rig", len(ok))
     entries = [PairEntry(o.name, o.left, o.right) for o in ok]

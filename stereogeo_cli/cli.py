@@ -187,6 +187,13 @@ def _print_summary(result, console) -> None:
             " ".join(f"{report[side]['dist'][i]:+.3f}" for i in (0, 1, 4)) for side in ("left", "right")
         ))  # fmt: skip
     console.print(table)
+    for side, prior in zip(("left", "right"), report.get("focal_prior") or (), strict=False):
+        if prior:
+            unit = "mm (35 mm equiv.)" if prior["tag"] == "FocalLengthIn35mmFilm" else "mm"
+            console.print(
+                f"{side} focal: EXIF {prior['tag_mm']:g} {unit} = {prior['focal_px']:.0f} px, with the "
+                f"fields' {prior['fields_focal_px']:.0f} px"
+            )
     pose = report["pose"]
     if pose.get("equal_focals"):
         console.print("focal lengths held equal: the matches could not tell the two cameras apart")
@@ -231,6 +238,17 @@ LinesFlag = Annotated[
 ]  # calibrate and batch-calibrate
 
 
+ExifFlag = Annotated[
+    bool,
+    typer.Option(
+        "--exif/--no-exif",
+        help="Take each photo's EXIF focal length (35 mm equivalent, or focal length and sensor resolution) "
+        "as a prior, combined with the network's reading. --no-exif: the images alone (for cropped or "
+        "digitally zoomed photos whose tags were not updated).",
+    ),
+]  # calibrate and batch-calibrate
+
+
 @app.command()
 def calibrate(
     left: Annotated[Path, typer.Argument(help="The left image (any format OpenCV reads).")],
@@ -263,6 +281,7 @@ def calibrate(
     ] = None,
     pinhole: PinholeFlag = False,
     lines: LinesFlag = True,
+    exif: ExifFlag = True,
     model: Annotated[
         Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
     ] = None,
@@ -286,13 +305,15 @@ def calibrate(
             _check_output_folder(preview.parent)
         from stereogeo_cli.batch import calibrator_conf
         from stereogeo_cli.io import load_image, write_calibration
+        from stereogeo_cli.io.exif import exif_focals
         from stereogeo_cli.pipeline import Calibrator
 
         left_image, right_image = load_image(left), load_image(right)
         calibrator = Calibrator(model, threads=threads, conf=calibrator_conf(pinhole, lines))
         result = calibrator.calibrate(
-            left_image, right_image, baseline_m=baseline, focal_left=focal_left, focal_right=focal_right
-        )
+            left_image, right_image, baseline_m=baseline, focal_left=focal_left, focal_right=focal_right,
+            exif=exif_focals((left, right), (left_image, right_image)) if exif else None,
+        )  # fmt: skip
         written = write_calibration(output, result.calibration, names) if output is not None else []
         if preview is not None:
             from stereogeo_cli.io.preview import write_preview
@@ -341,6 +362,7 @@ def batch_calibrate(
     ] = None,
     pinhole: PinholeFlag = False,
     lines: LinesFlag = True,
+    exif: ExifFlag = True,
     model: Annotated[
         Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
     ] = None,
@@ -375,7 +397,7 @@ def batch_calibrate(
         summary = run_batch(
             folder, output, formats=names, baseline_m=baseline, model=model, threads=threads,
             workers=workers, same_rig=same_rig, shard=shard_spec, progress=sys.stderr.isatty(),
-            pinhole=pinhole, lines=lines,
+            pinhole=pinhole, lines=lines, exif=exif,
         )  # fmt: skip
     except StereoGeoError as error:
         raise fail(error) from None

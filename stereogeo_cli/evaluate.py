@@ -112,6 +112,34 @@ def camera_errors(fit, cam: dict, view: str) -> dict:
     return row
 
 
+def pair_errors(result, record: dict) -> dict:
+    """The errors of one calibrated pair (a ``CalibrationResult``) against its ``calib.jsonl`` record: each
+    camera's (:func:`camera_errors`) and, where the record has a pose, the rotation's, the translation's
+    and its direction's and length's, each with its error/sigma ratio (``_z``)."""
+    row: dict = {}
+    for view, fit in (("left", result.left), ("right", result.right)):
+        row.update(camera_errors(fit, record[view], view))
+    if record.get("R") is None:
+        return row
+    c = result.calibration
+    row["rotation_error_deg"] = math.degrees(rotation_error(c.R, np.asarray(record["R"])))
+    T = np.asarray(record["T"], dtype=float)
+    if np.linalg.norm(T) > 1e-9:
+        row["translation_error_m"] = float(np.linalg.norm(c.T - T))
+        # the baseline's length: the metric scale, which only the pose head (or --baseline) gives
+        row["baseline_error_rel"] = abs(float(np.linalg.norm(c.T) / np.linalg.norm(T)) - 1.0)
+        row["direction_error_deg"] = _direction_error_deg(c.T, T)
+    row["pose_source"] = result.pose.source
+    # the pose's errors in units of its reported 1-sigmas (the fusion's, or the pose head's)
+    row["rotation_z"] = _z(row["rotation_error_deg"], result.pose.sigma_rotation_deg)
+    if row.get("direction_error_deg") is not None:
+        row["direction_z"] = _z(row["direction_error_deg"], result.pose.sigma_direction_deg)
+        scale_sigma = result.calibration.extra_report.get("pose", {}).get("sigma_baseline_rel")
+        if scale_sigma is not None:
+            row["baseline_z"] = _z(row["baseline_error_rel"], scale_sigma)
+    return row
+
+
 def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False, progress=None) -> dict:
     """Run ``calibrator`` (a :class:`stereogeo_cli.pipeline.Calibrator`) on every pair of a dataset.
 
@@ -132,31 +160,12 @@ def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False,
             if progress:
                 progress()
             continue
-        row: dict = {"id": name}
-        for view, fit in (("left", result.left), ("right", result.right)):
-            row.update(camera_errors(fit, record[view], view))
-        if record.get("R") is not None:
-            c = result.calibration
-            row["rotation_error_deg"] = math.degrees(rotation_error(c.R, np.asarray(record["R"])))
-            T = np.asarray(record["T"], dtype=float)
-            if np.linalg.norm(T) > 1e-9:
-                row["translation_error_m"] = float(np.linalg.norm(c.T - T))
-                # the baseline's length: the metric scale, which only the pose head (or --baseline) gives
-                row["baseline_error_rel"] = abs(float(np.linalg.norm(c.T) / np.linalg.norm(T)) - 1.0)
-                row["direction_error_deg"] = _direction_error_deg(c.T, T)
-            row["pose_source"] = result.pose.source
-            # the pose's errors in units of its reported 1-sigmas (the fusion's, or the pose head's)
-            row["rotation_z"] = _z(row["rotation_error_deg"], result.pose.sigma_rotation_deg)
-            if row.get("direction_error_deg") is not None:
-                row["direction_z"] = _z(row["direction_error_deg"], result.pose.sigma_direction_deg)
-                scale_sigma = result.calibration.extra_report.get("pose", {}).get("sigma_baseline_rel")
-                if scale_sigma is not None:
-                    row["baseline_z"] = _z(row["baseline_error_rel"], scale_sigma)
-            if baselines:
-                for label, matcher in BASELINES.items():
-                    errors = _baseline_pose(left, right, record, matcher)
-                    row[f"{label}_rotation_error_deg"] = errors[0] if errors else None
-                    row[f"{label}_direction_error_deg"] = errors[1] if errors else None
+        row = {"id": name, **pair_errors(result, record)}
+        if record.get("R") is not None and baselines:
+            for label, matcher in BASELINES.items():
+                errors = _baseline_pose(left, right, record, matcher)
+                row[f"{label}_rotation_error_deg"] = errors[0] if errors else None
+                row[f"{label}_direction_error_deg"] = errors[1] if errors else None
         per_pair.append(row)
         if progress:
             progress()

@@ -27,9 +27,10 @@ from stereogeo_cli.geometry import (
     undistort_division,
 )
 from stereogeo_cli.io import StereoCalibration
+from stereogeo_cli.io.exif import ExifFocal
 from stereogeo_cli.io.images import check_pair
 from stereogeo_cli.network.runtime import DEPTH_STRIDE, FieldNetwork, ViewFields
-from stereogeo_cli.refine import CameraFit, parse_sigma_inflation, refine_camera
+from stereogeo_cli.refine import CameraFit, combine_focal, parse_sigma_inflation, refine_camera
 from stereogeo_cli.refine.lines import default_conf as lines_conf
 from stereogeo_cli.refine.lines import detect_segments, gravity_with_lines
 from stereogeo_cli.refine.plumb import PlumbLens, plumb_line_distortion
@@ -41,6 +42,9 @@ DEFAULT_MODEL = MODELS_DIR / "stereogeo.onnx"
 default_conf = {
     "min_mean_confidence": 0.05,  # below this mean field confidence a view is too ambiguous to calibrate
     "known_focal_sigma": 0.0,  # 0: a focal given by the user is held fixed; > 0: relative 1-sigma
+    # an EXIF focal length (a prior, combined with the fields' by their sigmas) whose fields read it this many
+    # combined sigmas away gets a warning: the photo may be cropped or digitally zoomed
+    "exif_warn_sigmas": 4.0,
     # Also run the mirrored pair and average the fields (twice the network time). Off: with stereogeo-m2 it
     # lowered the mean errors on renders but raised the median roll error and the real-image vFoV errors
     # (docs/network.md, "Mirror averaging").
@@ -157,6 +161,48 @@ class Calibrator:
             (prior, prior * self.conf["known_focal_sigma"]) if self.conf["known_focal_sigma"] > 0 else prior
         )
 
+    def _refine_with_prior(
+        self, view: ViewFields, name: str, known_focal: float | None, prior: ExifFocal | None
+    ) -> tuple[CameraFit, dict | None, str | None]:
+        """One camera's fit, its focal length combined with an EXIF ``prior`` where there is one and no
+        known focal: (fit, the report's entry for the prior or None, a warning or None).
+
+        The fields' focal length and the prior are combined in log f by their 1-sigma figures (the fields'
+        as the model's sigma inflation widens them: the refiner's own information treats correlated field
+        cells as independent and would outweigh any prior), and the gravity is fitted again for that focal
+        length, which keeps the combined sigma."""
+        fit = self._refine_view(view, known_focal)
+        if known_focal is not None or prior is None:
+            return fit, None, None
+        fields_sigma = fit.sigma["focal_px"] / fit.focal_px
+        focal, sigma = combine_focal(fit.focal_px, fit.sigma["focal_px"], prior.focal_px, prior.sigma_px)
+        combined = self._refine_view(view, focal)
+        covariance = np.array(combined.covariance, dtype=float)
+        covariance[2, :] = covariance[:, 2] = 0.0
+        covariance[2, 2] = (sigma / focal) ** 2  # of log f
+        combined = combined.with_gravity(combined.gravity_up, covariance)
+        apart = abs(math.log(fit.focal_px / prior.focal_px))
+        fields_sigma = fields_sigma if math.isfinite(fields_sigma) else 0.0
+        sigmas = apart / math.sqrt(prior.sigma_rel**2 + fields_sigma**2)
+        warning = None
+        if sigmas > self.conf["exif_warn_sigmas"]:
+            warning = (
+                f"the {name} photo's EXIF focal length ({prior.focal_px:.0f} px) and its fields "
+                f"({fit.focal_px:.0f} px) disagree by {100 * (math.exp(apart) - 1):.0f} %; if it was cropped "
+                "or digitally zoomed, calibrate with --no-exif"
+            )
+        entry = {
+            "source": "exif",
+            "tag": prior.tag,
+            "tag_mm": prior.value_mm,
+            "focal_px": prior.focal_px,
+            "sigma_px": prior.sigma_px,
+            "fields_focal_px": fit.focal_px,  # what the fields alone read, and its 1-sigma
+            "fields_sigma_px": _finite(fit.sigma["focal_px"]),
+            "combined_focal_px": focal,  # the two combined, before the feature matches refine it
+        }
+        return combined, entry, warning
+
     def _with_lines(
         self,
         view: ViewFields,
@@ -208,12 +254,16 @@ class Calibrator:
         baseline_m: float | None = None,
         focal_left: float | None = None,
         focal_right: float | None = None,
+        exif: tuple[tuple[ExifFocal | None, str | None], tuple[ExifFocal | None, str | None]] | None = None,
     ) -> CalibrationResult:
         """Calibrate one pair of RGB images [H x W x 3] uint8 (the two sizes may differ).
 
         Args:
             baseline_m: the known |T| in metres; without it the pose head's learned metric scale is used.
             focal_left, focal_right: known focal lengths in pixels of each image, held fixed.
+            exif: per image what :func:`stereogeo_cli.io.exif.read_exif_focal` found, (focal, reason it
+                is not usable): a focal length is a prior, combined with the fields' (a known focal
+                length wins); a reason becomes a warning.
         Raises:
             CalibrationFailed: the images are blank or the fields too ambiguous to trust.
         """
@@ -236,8 +286,18 @@ class Calibrator:
                     f"(mean field confidence {confidence:.3f})"
                 )
         tick = time.perf_counter()
-        fit_left = self._refine_view(net.left, focal_left)
-        fit_right = self._refine_view(net.right, focal_right)
+        exif = exif or ((None, None), (None, None))
+        priors: list[dict | None] = [None, None]
+        fits = []
+        for side, (name, view, known) in enumerate(
+            (("left", net.left, focal_left), ("right", net.right, focal_right))
+        ):
+            found, reason = exif[side]
+            fit, priors[side], disagreement = self._refine_with_prior(view, name, known, found)
+            fits.append(fit)
+            if known is None:
+                warnings.extend(note for note in (reason, disagreement) if note)
+        fit_left, fit_right = fits
         timing["refine"] = (time.perf_counter() - tick) * 1e3
         for name, fit in (("left", fit_left), ("right", fit_right)):
             if not np.isfinite(fit.sigma["focal_px"]) and focal_left is None and focal_right is None:
@@ -291,12 +351,15 @@ class Calibrator:
         if found_segments is not None:
             tick = time.perf_counter()
             # after the matches' focal refinement: the fusion's k is in the refined K's coordinates
+            # a focal length with an EXIF prior is held at the combined value, as a known one is
             fit_left, used[0] = self._with_lines(
-                net.left, fit_left, found_segments[0], pose.distortion[0], focal_left
-            )
+                net.left, fit_left, found_segments[0], pose.distortion[0],
+                fit_left.focal_px if priors[0] else focal_left,
+            )  # fmt: skip
             fit_right, used[1] = self._with_lines(
-                net.right, fit_right, found_segments[1], pose.distortion[1], focal_right
-            )
+                net.right, fit_right, found_segments[1], pose.distortion[1],
+                fit_right.focal_px if priors[1] else focal_right,
+            )  # fmt: skip
             timing["lines"] += (time.perf_counter() - tick) * 1e3
         if self.conf["share_gravity"]:
             # the fusion's rotation sigma is the total over three axes
@@ -377,6 +440,8 @@ class Calibrator:
                     # relative 1-sigma of a learned baseline (the model's validation figure); None when given
                     "sigma_baseline_rel": baseline_sigma,
                 },
+                # each camera's EXIF focal length, where one was combined with the fields' (left, right)
+                "focal_prior": priors,
                 # vertical line segments each camera's gravity was fitted with (left, right)
                 "vertical_segments": used,
                 "warnings": list(warnings),

@@ -8,6 +8,7 @@ squared residual. Steps that raise the cost are rejected (GeoCalib accepts every
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -128,6 +129,19 @@ def _sigmas(cov: np.ndarray, focal: float, height: float, pitch: float) -> dict[
         "roll_deg": float(np.degrees(sig[1] / max(np.cos(pitch), 1e-9))),
         "pitch_deg": float(np.degrees(sig[0])),
     }
+
+
+def combine_focal(focal: float, sigma: float, prior_focal: float, prior_sigma: float) -> tuple[float, float]:
+    """Two focal estimates with 1-sigmas (pixels) combined in log f by inverse variance: (focal, sigma).
+
+    A non-finite or non-positive ``sigma`` leaves the prior alone."""
+    s_prior = prior_sigma / prior_focal
+    weights, logs = [1.0 / s_prior**2], [math.log(prior_focal)]
+    if math.isfinite(sigma) and sigma > 0:
+        weights.append((focal / sigma) ** 2)
+        logs.append(math.log(focal))
+    combined = math.exp(float(np.dot(weights, logs)) / sum(weights))
+    return combined, combined / math.sqrt(sum(weights))
 
 
 def huber(s: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,138 @@
+"""The focal length a photo's EXIF metadata records, in pixels of the image as loaded.
+
+Phones and cameras write the lens's focal length into EXIF; COLMAP and other structure-from-motion tools
+start from it. ``calibrate`` takes it as a prior on each camera's focal length (``--no-exif`` turns that
+off), weighed against what the network's fields read: the two are combined by their 1-sigma figures.
+
+Two routes, the first that applies:
+
+- ``FocalLengthIn35mmFilm`` (tag 0xA405): the 35 mm-equivalent focal length F35, which CIPA DC-008 scales
+  by the diagonal, so ``f = F35 · hypot(w, h) / hypot(36, 24)`` pixels. It is rounded to whole millimetres
+  (2 % at 26 mm) and some makers scale by the width instead (4 % apart for 4:3 frames): 1-sigma 5 %.
+- ``FocalLength`` (0x920A) with ``FocalPlaneXResolution`` and its unit (0xA20E, 0xA210): the focal length in
+  millimetres times the sensor's pixels per millimetre, scaled to the image's width when it was resized.
+  Makers fill the focal-plane resolution less consistently: 1-sigma 8 %.
+
+A photo that was cropped no longer has the focal length its tags describe in these terms. Where EXIF
+records the original pixel size (``PixelXDimension``, ``PixelYDimension``) and its shape differs from the
+file's, the tags are not used and the reason is returned. A resize keeps the shape and is fine. A crop that
+keeps the shape, or a digital zoom whose tags were not updated, cannot be seen here: ``calibrate`` warns
+when the fields disagree strongly.
+
+Orientation: the tags describe the stored sensor grid; ``load_image`` applies the EXIF orientation, so
+for orientations 5–8 the image as loaded is the stored one turned by 90°. Its diagonal is the same.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+
+SIGMA_35MM = 0.05  # relative 1-sigma of a focal length from FocalLengthIn35mmFilm (module docstring)
+SIGMA_FOCAL_PLANE = 0.08  # ... and from FocalLength with FocalPlaneXResolution
+MAX_SHAPE_CHANGE = 0.01  # |log| of the aspect ratio change beyond which the photo counts as cropped
+VFOV_RANGE_DEG = (5.0, 150.0)  # the refiner's range; a focal length outside it is a broken tag
+
+_EXIF_IFD = 0x8769
+_ORIENTATION = 0x0112
+_FOCAL_35MM = 0xA405
+_FOCAL_LENGTH = 0x920A
+_PLANE_X_RESOLUTION = 0xA20E
+_PLANE_UNIT = 0xA210
+_PIXEL_X, _PIXEL_Y = 0xA002, 0xA003
+# FocalPlaneResolutionUnit in millimetres: inch, cm (the standard's), and mm, µm (some writers')
+_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 1e-3}
+
+
+@dataclass(frozen=True)
+class ExifFocal:
+    """A focal length read from EXIF, in pixels of the image as loaded (EXIF orientation applied)."""
+
+    focal_px: float
+    sigma_rel: float  # relative 1-sigma
+    tag: str  # "FocalLengthIn35mmFilm" or "FocalLength"
+    value_mm: float  # the tag's value in millimetres (35 mm-equivalent for the first)
+
+    @property
+    def sigma_px(self) -> float:
+        return self.focal_px * self.sigma_rel
+
+
+def read_exif_focal(path: str | os.PathLike, width: int, height: int) -> tuple[ExifFocal | None, str | None]:
+    """The focal length the EXIF of ``path`` records, for the image as loaded (``width`` x ``height``).
+
+    Returns ``(focal, None)``, or ``(None, reason)`` when EXIF has focal tags that cannot be used (a cropped
+    photo, a value out of range), or ``(None, None)`` when it has none (most PNGs; any file Pillow cannot
+    read). Never raises: EXIF is optional metadata, and a damaged block is the same as none.
+    """
+    try:
+        tags, exif = _read_tags(path)
+    except Exception:  # noqa: BLE001 - unreadable or damaged metadata: as if there were none
+        return None, None
+    if tags is None:
+        return None, None
+    focal_35mm = _number(exif.get(_FOCAL_35MM))
+    focal_mm = _number(exif.get(_FOCAL_LENGTH))
+    plane_resolution = _number(exif.get(_PLANE_X_RESOLUTION))
+    unit = _UNIT_MM.get(int(_number(exif.get(_PLANE_UNIT)) or 2))
+    usable_35mm = focal_35mm is not None and focal_35mm > 0
+    usable_plane = focal_mm is not None and focal_mm > 0 and plane_resolution and unit is not None
+    if not (usable_35mm or usable_plane):
+        return None, None
+
+    name = os.fspath(path)
+    turned = int(_number(tags.get(_ORIENTATION)) or 1) in (5, 6, 7, 8)
+    stored_w, stored_h = (height, width) if turned else (width, height)
+    original_w, original_h = _number(exif.get(_PIXEL_X)), _number(exif.get(_PIXEL_Y))
+    if original_w and original_h:
+        change = abs(math.log((original_w / original_h) / (stored_w / stored_h)))
+        if change > MAX_SHAPE_CHANGE:
+            return None, (
+                f"{name}: EXIF focal length not used, the photo was cropped (EXIF size "
+                f"{original_w:.0f}x{original_h:.0f}, image {stored_w}x{stored_h})"
+            )
+    if usable_35mm:
+        found = ExifFocal(
+            focal_35mm * math.hypot(width, height) / math.hypot(36.0, 24.0),
+            SIGMA_35MM, "FocalLengthIn35mmFilm", float(focal_35mm),
+        )  # fmt: skip
+    else:
+        resized = stored_w / original_w if original_w else 1.0
+        found = ExifFocal(
+            focal_mm * plane_resolution / unit * resized, SIGMA_FOCAL_PLANE, "FocalLength", float(focal_mm)
+        )
+    vfov = math.degrees(2.0 * math.atan(height / (2.0 * found.focal_px)))
+    if not VFOV_RANGE_DEG[0] <= vfov <= VFOV_RANGE_DEG[1]:
+        return None, f"{name}: EXIF focal length not used, {found.tag} gives a vFoV of {vfov:.1f}°"
+    return found, None
+
+
+def _read_tags(path):
+    """(IFD0 tags, Exif IFD tags) of a file, or (None, None) when it has no EXIF."""
+    from PIL import Image
+
+    with Image.open(path) as image:  # reads the header only, not the pixels
+        tags = image.getexif()
+        if not tags:
+            return None, None
+        return dict(tags), dict(tags.get_ifd(_EXIF_IFD))
+
+
+def _number(value) -> float | None:
+    """A tag's value as a float (rationals included), or None; a tuple (some writers) gives its first."""
+    if isinstance(value, tuple | list):
+        value = value[0] if value else None
+    try:
+        number = float(value)
+    except (TypeError, ValueError, ZeroDivisionError):
+        return None
+    return number if math.isfinite(number) else None
+
+
+def exif_focals(paths, images) -> tuple[tuple[ExifFocal | None, str | None], ...]:
+    """:func:`read_exif_focal` of each file of a pair, for its image as loaded ([H x W x 3])."""
+    return tuple(
+        read_exif_focal(path, image.shape[1], image.shape[0])
+        for path, image in zip(paths, images, strict=True)
+    )

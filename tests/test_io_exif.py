@@ -1,0 +1,155 @@
+"""The EXIF focal length as a prior (stereogeo_cli/io/exif.py): what is read from the tags, what is refused,
+and what ``calibrate`` and ``batch-calibrate --same-rig`` make of it."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from stereogeo_cli.batch import FocalEstimate, _with_exif_prior
+from stereogeo_cli.cli import app
+from stereogeo_cli.io import load_image
+from stereogeo_cli.io.exif import SIGMA_35MM, SIGMA_FOCAL_PLANE, read_exif_focal
+from stereogeo_cli.refine import combine_focal
+
+DIAGONAL_35MM = math.hypot(36.0, 24.0)
+runner = CliRunner()
+
+
+def write_jpeg(path: Path, rgb: np.ndarray | None = None, size=(400, 300), **tags) -> Path:
+    """A JPEG with the given EXIF tags: orientation in IFD0, the rest (by number) in the Exif IFD."""
+    image = Image.fromarray(rgb) if rgb is not None else Image.new("RGB", size, (90, 120, 150))
+    exif = Image.Exif()
+    if "orientation" in tags:
+        exif[0x0112] = tags.pop("orientation")
+    ifd = exif.get_ifd(0x8769)
+    for number, value in tags.items():
+        ifd[int(number, 16)] = value
+    image.save(path, quality=95, exif=exif.tobytes())
+    return path
+
+
+def test_35mm_equivalent_scales_by_the_diagonal(tmp_path):
+    path = write_jpeg(tmp_path / "a.jpg", **{"0xA405": 26})
+    found, reason = read_exif_focal(path, 400, 300)
+    assert reason is None and found.tag == "FocalLengthIn35mmFilm" and found.value_mm == 26
+    assert found.focal_px == pytest.approx(26 * 500 / DIAGONAL_35MM, rel=1e-12)
+    assert found.sigma_rel == SIGMA_35MM
+
+
+def test_a_turned_photo_is_not_mistaken_for_a_cropped_one(tmp_path):
+    # stored 400x300 with the sensor size recorded, shown turned (orientation 6) as 300x400
+    path = write_jpeg(tmp_path / "a.jpg", orientation=6, **{"0xA405": 26, "0xA002": 4000, "0xA003": 3000})
+    image = load_image(path)
+    assert image.shape[:2] == (400, 300)  # as displayed
+    found, reason = read_exif_focal(path, image.shape[1], image.shape[0])
+    assert reason is None and found.focal_px == pytest.approx(26 * 500 / DIAGONAL_35MM)
+
+
+def test_a_cropped_photo_is_refused_with_the_reason(tmp_path):
+    path = write_jpeg(tmp_path / "a.jpg", size=(300, 300), **{"0xA405": 26, "0xA002": 4032, "0xA003": 3024})
+    found, reason = read_exif_focal(path, 300, 300)
+    assert found is None and "cropped" in reason and "4032x3024" in reason
+
+
+def test_focal_length_and_focal_plane_resolution_of_a_resized_photo(tmp_path):
+    # 4.2 mm, 1.4 µm pixels (7142.86 per cm), shot at 4032x3024 and saved at a tenth of that
+    path = write_jpeg(
+        tmp_path / "a.jpg", size=(403, 302),
+        **{"0x920A": 4.2, "0xA20E": 7142.857, "0xA210": 3, "0xA002": 4032, "0xA003": 3024},
+    )  # fmt: skip
+    found, reason = read_exif_focal(path, 403, 302)
+    assert reason is None and found.tag == "FocalLength" and found.sigma_rel == SIGMA_FOCAL_PLANE
+    assert found.focal_px == pytest.approx(4.2 / 0.0014 * 403 / 4032, rel=1e-4)
+
+
+def test_no_usable_tags_mean_no_prior(tmp_path):
+    plain = tmp_path / "plain.png"
+    Image.new("RGB", (200, 100)).save(plain)
+    assert read_exif_focal(plain, 200, 100) == (None, None)
+    assert read_exif_focal(write_jpeg(tmp_path / "zero.jpg", **{"0xA405": 0}), 400, 300) == (None, None)
+    broken = tmp_path / "broken.jpg"
+    broken.write_bytes(b"\xff\xd8\xff\xe1\x00\x10Exif\x00\x00garbage-garbage")
+    assert read_exif_focal(broken, 400, 300) == (None, None)
+    found, reason = read_exif_focal(write_jpeg(tmp_path / "wide.jpg", **{"0xA405": 1}), 400, 300)
+    assert found is None and "vFoV" in reason
+
+
+def test_same_rig_counts_the_photos_prior_once():
+    fields = FocalEstimate(500.0, 50.0, np.ones(3, bool))
+    combined = _with_exif_prior(fields, [(600.0, 30.0)] * 3)
+    assert (combined.focal_px, combined.sigma_px) == pytest.approx(combine_focal(500.0, 50.0, 600.0, 30.0))
+    assert _with_exif_prior(fields, []) is fields
+
+
+def test_combine_focal_weighs_by_inverse_variance_in_log_f():
+    focal, sigma = combine_focal(400.0, 40.0, 500.0, 25.0)  # sigmas of log f: 0.1 and 0.05
+    assert math.log(focal) == pytest.approx((math.log(400) / 0.01 + math.log(500) / 0.0025) / 500.0)
+    assert sigma / focal == pytest.approx(math.sqrt(1 / 500.0))
+    assert combine_focal(400.0, float("nan"), 500.0, 25.0) == pytest.approx((500.0, 25.0))
+
+
+def calibrate_json(*args) -> dict:
+    result = runner.invoke(app, ["calibrate", *map(str, args), "--json"])
+    assert result.exit_code == 0, result.output
+    return json.loads(result.stdout)
+
+
+def jpeg_pair(folder: Path, left: Path, right: Path, f35: tuple[float | None, float | None]):
+    paths = []
+    for name, src, tag in (("left", left, f35[0]), ("right", right, f35[1])):
+        tags = {} if tag is None else {"0xA405": int(round(tag))}
+        paths.append(write_jpeg(folder / f"{name}.jpg", load_image(src), **tags))
+    return paths
+
+
+def test_calibrate_combines_the_exif_focal_with_the_fields_and_warns_when_they_disagree(
+    example_pair, onnx_model, tmp_path
+):
+    left, right = example_pair
+    h, w = load_image(left).shape[:2]
+    # the tag of a focal length three times the fields' reading on the left; none on the right
+    plain = calibrate_json(left, right, "--model", onnx_model)
+    tagged = 3 * plain["left"]["focal_px"] * DIAGONAL_35MM / math.hypot(w, h)
+    jl, jr = jpeg_pair(tmp_path, left, right, (tagged, None))
+    report = calibrate_json(jl, jr, "--model", onnx_model)
+    prior, none = report["focal_prior"]
+    assert none is None and prior["source"] == "exif" and prior["tag"] == "FocalLengthIn35mmFilm"
+    assert prior["focal_px"] == pytest.approx(int(round(tagged)) * math.hypot(w, h) / DIAGONAL_35MM)
+    # combined by their sigmas: between the two readings, and where the weights put it (the matches move
+    # the pre-fusion value by their focal ratio only)
+    fields, fields_sigma = prior["fields_focal_px"], prior["fields_sigma_px"]
+    expected, _ = combine_focal(fields, fields_sigma, prior["focal_px"], prior["sigma_px"])
+    assert prior["combined_focal_px"] == pytest.approx(expected)
+    assert fields < prior["combined_focal_px"] < prior["focal_px"]
+    assert report["left"]["sigma"]["focal_px"] < fields_sigma
+    assert any("EXIF focal length" in w and "--no-exif" in w for w in report["warnings"])
+    # --no-exif: the images alone
+    alone = calibrate_json(jl, jr, "--model", onnx_model, "--no-exif")
+    assert alone["focal_prior"] == [None, None] and not any("EXIF" in w for w in alone["warnings"])
+    # a known focal length wins over the tag
+    known = calibrate_json(jl, jr, "--model", onnx_model, "--focal-left", 300)
+    assert known["focal_prior"][0] is None and known["left"]["focal_px"] == pytest.approx(300.0)
+
+
+def test_exif_focal_fixes_a_long_lens_the_fields_read_wide(shared_data, tmp_path):
+    """Middlebury's Adirondack (27° vFoV): stereogeo-m14's fields read its focal length 58 % short; with
+    the focal length tagged as a phone would tag it (35 mm equivalent, whole millimetres) it is within
+    10 %."""
+    folder = shared_data / "real-dev" / "middlebury"
+    record = json.loads((folder / "calib.jsonl").read_text().splitlines()[0])
+    name = record["id"]
+    left, right = folder / "left" / f"{name}.png", folder / "right" / f"{name}.png"
+    width, height = record["left"]["width"], record["left"]["height"]
+    f35 = [record[v]["K"][0][0] * DIAGONAL_35MM / math.hypot(width, height) for v in ("left", "right")]
+    jl, jr = jpeg_pair(tmp_path, left, right, (f35[0], f35[1]))
+    report = calibrate_json(jl, jr)
+    for side in ("left", "right"):
+        assert report["focal_prior"][int(side == "right")]["tag_mm"] == round(f35[int(side == "right")])
+        assert abs(report[side]["focal_px"] / record[side]["K"][0][0] - 1) < 0.10
