@@ -153,3 +153,32 @@ def test_exif_focal_fixes_a_long_lens_the_fields_read_wide(shared_data, tmp_path
     for side in ("left", "right"):
         assert report["focal_prior"][int(side == "right")]["tag_mm"] == round(f35[int(side == "right")])
         assert abs(report[side]["focal_px"] / record[side]["K"][0][0] - 1) < 0.10
+
+
+def test_batch_and_same_rig_take_the_tags_and_no_exif_turns_them_off(example_pair, onnx_model, tmp_path):
+    """Two pairs of one rig tagged with the same 35 mm focal length: every pair's report takes the tag in,
+    and the joint focal length of --same-rig is the fields' (over both pairs) combined with the tag once."""
+    images = [load_image(p)[::2, ::2].copy() for p in example_pair]  # 320x240: quick
+    h, w = images[0].shape[:2]
+    f35 = 300.0 * DIAGONAL_35MM / math.hypot(w, h)  # a tag far from the fields' reading (about 170 px)
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for name in ("a", "b"):
+        for side, image in zip(("left", "right"), images, strict=True):
+            write_jpeg(folder / f"{name}_{side}.jpg", image, **{"0xA405": int(round(f35))})
+    out = tmp_path / "out"
+    args = ["batch-calibrate", folder, "-o", out, "--model", onnx_model, "--same-rig", "--baseline", "0.12"]
+    result = runner.invoke(app, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+    reports = [json.loads((out / name / "report.json").read_text()) for name in ("a", "b")]
+    prior = reports[0]["focal_prior"][0]
+    assert prior["source"] == "exif" and reports[1]["focal_prior"][1]["tag_mm"] == round(f35)
+    rig = json.loads((out / "rig" / "report.json").read_text())
+    # the two (identical) pairs' fields combined, then the tag once: counted twice it would be 0.77 of this
+    fields_rel = prior["fields_sigma_px"] / prior["fields_focal_px"]
+    once = (2 / fields_rel**2 + 1 / (prior["sigma_px"] / prior["focal_px"]) ** 2) ** -0.5
+    assert rig["left"]["sigma"]["focal_px"] / rig["left"]["focal_px"] == pytest.approx(once, rel=0.02)
+    assert prior["fields_focal_px"] < rig["left"]["focal_px"] < prior["focal_px"]
+    result = runner.invoke(app, [str(a) for a in [*args[:3], tmp_path / "plain", *args[4:], "--no-exif"]])
+    assert result.exit_code == 0, result.output
+    assert json.loads((tmp_path / "plain" / "a" / "report.json").read_text())["focal_prior"] == [None, None]

@@ -112,11 +112,17 @@ def _read_tags(path):
     """(IFD0 tags, Exif IFD tags) of a file, or (None, None) when it has no EXIF."""
     from PIL import Image
 
-    with Image.open(path) as image:  # reads the header only, not the pixels
-        tags = image.getexif()
-        if not tags:
-            return None, None
-        return dict(tags), dict(tags.get_ifd(_EXIF_IFD))
+    # Only the header is read, never the pixels, so Pillow's guard against decompression bombs (a warning
+    # from 89 MP, an error from 179 MP: a 200 MP phone photo) does not apply here.
+    limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
+    try:
+        with Image.open(path) as image:
+            tags = image.getexif()
+            if not tags:
+                return None, None
+            return dict(tags), dict(tags.get_ifd(_EXIF_IFD))
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
 
 
 def _number(value) -> float | None:
