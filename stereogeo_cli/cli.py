@@ -188,7 +188,7 @@ def _print_summary(result, console) -> None:
         ))  # fmt: skip
     console.print(table)
     for side, prior in zip(("left", "right"), report.get("focal_prior") or (), strict=False):
-        if prior:
+        if prior and prior["source"] == "exif":
             unit = "mm (35 mm equiv.)" if prior["tag"] == "FocalLengthIn35mmFilm" else "mm"
             console.print(
                 f"{side} focal: EXIF {prior['tag_mm']:g} {unit} = {prior['focal_px']:.0f} px, with the "

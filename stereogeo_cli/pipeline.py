@@ -41,7 +41,9 @@ DEFAULT_MODEL = MODELS_DIR / "stereogeo.onnx"
 
 default_conf = {
     "min_mean_confidence": 0.05,  # below this mean field confidence a view is too ambiguous to calibrate
-    "known_focal_sigma": 0.0,  # 0: a focal given by the user is held fixed; > 0: relative 1-sigma
+    # 0: a focal length given by the user is held fixed; > 0: its relative 1-sigma, and it is a prior combined
+    # with the fields' as an EXIF focal length is
+    "known_focal_sigma": 0.0,
     # an EXIF focal length (a prior, combined with the fields' by their sigmas) whose fields read it this many
     # combined sigmas away gets a warning: the photo may be cropped or digitally zoomed
     "exif_warn_sigmas": 4.0,
@@ -153,24 +155,23 @@ class Calibrator:
         )  # fmt: skip
         return fit.in_original_pixels(view.resize_crop)
 
-    def _focal_prior(self, view: ViewFields, known_focal: float | None):
-        if known_focal is None:
-            return None
-        prior = view.resize_crop.focal_to_output(known_focal)
-        return (
-            (prior, prior * self.conf["known_focal_sigma"]) if self.conf["known_focal_sigma"] > 0 else prior
-        )
+    @staticmethod
+    def _focal_prior(view: ViewFields, known_focal: float | None) -> float | None:
+        """A known focal length (original pixels) as the refiner holds it (network-output pixels)."""
+        return None if known_focal is None else view.resize_crop.focal_to_output(known_focal)
 
     def _refine_with_prior(
         self, view: ViewFields, name: str, known_focal: float | None, prior: ExifFocal | None
     ) -> tuple[CameraFit, dict | None, str | None]:
-        """One camera's fit, its focal length combined with an EXIF ``prior`` where there is one and no
-        known focal: (fit, the report's entry for the prior or None, a warning or None).
+        """One camera's fit, its focal length combined with a ``prior`` (from EXIF, or given with a sigma)
+        where there is one and no known focal: (fit, the report's entry for the prior or None, a warning or
+        None).
 
-        The fields' focal length and the prior are combined in log f by their 1-sigma figures (the fields'
-        as the model's sigma inflation widens them: the refiner's own information treats correlated field
-        cells as independent and would outweigh any prior), and the gravity is fitted again for that focal
-        length, which keeps the combined sigma."""
+        The fields' focal length and the prior are combined in log f by their 1-sigma figures, the fields'
+        as the model's sigma inflation widens them, and the gravity is fitted again for that focal length,
+        which keeps the combined sigma. (A soft prior inside the refiner would meet the fields' own
+        information, which treats correlated field cells as independent: the refiner's sandwich covariance
+        then has no meaning for the focal length.)"""
         fit = self._refine_view(view, known_focal)
         if known_focal is not None or prior is None:
             return fit, None, None
@@ -186,13 +187,18 @@ class Calibrator:
         sigmas = apart / math.sqrt(prior.sigma_rel**2 + fields_sigma**2)
         warning = None
         if sigmas > self.conf["exif_warn_sigmas"]:
+            what = "given focal length" if prior.source == "given" else "photo's EXIF focal length"
+            advice = (
+                ""
+                if prior.source == "given"
+                else "; if it was cropped or digitally zoomed, calibrate with --no-exif"
+            )
             warning = (
-                f"the {name} photo's EXIF focal length ({prior.focal_px:.0f} px) and its fields "
-                f"({fit.focal_px:.0f} px) disagree by {100 * (math.exp(apart) - 1):.0f} %; if it was cropped "
-                "or digitally zoomed, calibrate with --no-exif"
+                f"the {name} {what} ({prior.focal_px:.0f} px) and its fields ({fit.focal_px:.0f} px) "
+                f"disagree by {100 * (math.exp(apart) - 1):.0f} %{advice}"
             )
         entry = {
-            "source": "exif",
+            "source": prior.source,
             "tag": prior.tag,
             "tag_mm": prior.value_mm,
             "focal_px": prior.focal_px,
@@ -260,7 +266,9 @@ class Calibrator:
 
         Args:
             baseline_m: the known |T| in metres; without it the pose head's learned metric scale is used.
-            focal_left, focal_right: known focal lengths in pixels of each image, held fixed.
+            focal_left, focal_right: known focal lengths in pixels of each image, held fixed (with the
+                conf ``known_focal_sigma`` > 0, priors with that relative 1-sigma, combined with the
+                fields' as an EXIF focal length is).
             exif: per image what :func:`stereogeo_cli.io.exif.read_exif_focal` found, (focal, reason it
                 is not usable): a focal length is a prior, combined with the fields' (a known focal
                 length wins); a reason becomes a warning.
@@ -288,19 +296,23 @@ class Calibrator:
         tick = time.perf_counter()
         exif = exif or ((None, None), (None, None))
         priors: list[dict | None] = [None, None]
-        fits = []
+        fits, held = [], []  # held: the focal lengths held fixed (given without a sigma)
         for side, (name, view, known) in enumerate(
             (("left", net.left, focal_left), ("right", net.right, focal_right))
         ):
             found, reason = exif[side]
+            if known is not None and self.conf["known_focal_sigma"] > 0:  # a given focal length, softly
+                found, reason = ExifFocal(known, self.conf["known_focal_sigma"], "given", None, "given"), None
+                known = None
             fit, priors[side], disagreement = self._refine_with_prior(view, name, known, found)
             fits.append(fit)
+            held.append(known)
             if known is None:
                 warnings.extend(note for note in (reason, disagreement) if note)
         fit_left, fit_right = fits
         timing["refine"] = (time.perf_counter() - tick) * 1e3
         for name, fit in (("left", fit_left), ("right", fit_right)):
-            if not np.isfinite(fit.sigma["focal_px"]) and focal_left is None and focal_right is None:
+            if not np.isfinite(fit.sigma["focal_px"]) and held == [None, None]:
                 raise CalibrationFailed(f"the {name} camera's focal length could not be determined")
 
         K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
@@ -334,8 +346,8 @@ class Calibrator:
             gravity_sigma_rad=max(gravity_sigma, 1e-4) if math.isfinite(gravity_sigma) else None,
             prior_R=net.rotation, prior_t=net.translation, conf=self.conf["fuse"],
             focal_sigma_rel=(
-                None if focal_left is not None else fit_left.sigma["focal_px"] / fit_left.focal_px,
-                None if focal_right is not None else fit_right.sigma["focal_px"] / fit_right.focal_px,
+                None if held[0] is not None else fit_left.sigma["focal_px"] / fit_left.focal_px,
+                None if held[1] is not None else fit_right.sigma["focal_px"] / fit_right.focal_px,
             ),
             distortion_evidence=(
                 None if edge_lens[0] is None else edge_lens[0].division_k(fit_left.focal_px),
@@ -354,11 +366,11 @@ class Calibrator:
             # a focal length with an EXIF prior is held at the combined value, as a known one is
             fit_left, used[0] = self._with_lines(
                 net.left, fit_left, found_segments[0], pose.distortion[0],
-                fit_left.focal_px if priors[0] else focal_left,
+                fit_left.focal_px if priors[0] else held[0],
             )  # fmt: skip
             fit_right, used[1] = self._with_lines(
                 net.right, fit_right, found_segments[1], pose.distortion[1],
-                fit_right.focal_px if priors[1] else focal_right,
+                fit_right.focal_px if priors[1] else held[1],
             )  # fmt: skip
             timing["lines"] += (time.perf_counter() - tick) * 1e3
         if self.conf["share_gravity"]:

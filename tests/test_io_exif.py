@@ -182,3 +182,22 @@ def test_batch_and_same_rig_take_the_tags_and_no_exif_turns_them_off(example_pai
     result = runner.invoke(app, [str(a) for a in [*args[:3], tmp_path / "plain", *args[4:], "--no-exif"]])
     assert result.exit_code == 0, result.output
     assert json.loads((tmp_path / "plain" / "a" / "report.json").read_text())["focal_prior"] == [None, None]
+
+
+def test_a_focal_length_given_with_a_sigma_is_combined_as_a_tag_is(example_pair, onnx_model):
+    """The pipeline's ``known_focal_sigma``: a given focal length becomes a prior, not a held value, with a
+    meaningful sigma (a soft prior inside the refiner met the fields' uninflated information and came out
+    with a sigma of 150 %)."""
+    from stereogeo_cli.pipeline import Calibrator
+
+    left, right = (load_image(p) for p in example_pair)
+    held = Calibrator(onnx_model, threads=1).calibrate(left, right, focal_left=500.0)
+    assert held.left.focal_px == pytest.approx(500.0) and held.report()["focal_prior"][0] is None
+    soft = Calibrator(onnx_model, threads=1, conf={"known_focal_sigma": 0.05})
+    result = soft.calibrate(left, right, focal_left=500.0)
+    prior = result.report()["focal_prior"][0]
+    assert prior["source"] == "given" and prior["tag_mm"] is None and prior["focal_px"] == 500.0
+    expected, sigma = combine_focal(prior["fields_focal_px"], prior["fields_sigma_px"], 500.0, 25.0)
+    assert prior["combined_focal_px"] == pytest.approx(expected)
+    assert prior["fields_focal_px"] < result.left.focal_px < 500.0
+    assert result.left.sigma["focal_px"] / result.left.focal_px == pytest.approx(sigma / expected, rel=0.05)

@@ -52,7 +52,9 @@ class ExifFocal:
     focal_px: float
     sigma_rel: float  # relative 1-sigma
     tag: str  # "FocalLengthIn35mmFilm" or "FocalLength"
-    value_mm: float  # the tag's value in millimetres (35 mm-equivalent for the first)
+    value_mm: float | None  # the tag's value in millimetres (35 mm-equivalent for the first)
+    # "exif"; "given" for a focal length the caller gave with a sigma (pipeline conf known_focal_sigma)
+    source: str = "exif"
 
     @property
     def sigma_px(self) -> float:
