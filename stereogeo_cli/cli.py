@@ -194,6 +194,11 @@ def _print_summary(result, console) -> None:
                 f"{side} focal: EXIF {prior['tag_mm']:g} {unit} = {prior['focal_px']:.0f} px, with the "
                 f"fields' {prior['fields_focal_px']:.0f} px"
             )
+        elif prior:
+            console.print(
+                f"{side} focal: given {prior['focal_px']:.0f} ± {prior['sigma_px']:.0f} px, with the fields' "
+                f"{prior['fields_focal_px']:.0f} px"
+            )
     pose = report["pose"]
     if pose.get("equal_focals"):
         console.print("focal lengths held equal: the matches could not tell the two cameras apart")
@@ -279,6 +284,13 @@ def calibrate(
     focal_right: Annotated[
         float | None, typer.Option(help="The right camera's focal length in pixels, if known.")
     ] = None,
+    focal_sigma: Annotated[
+        float | None,
+        typer.Option(
+            help="Relative 1-sigma of --focal-left/--focal-right (e.g. 0.05 for a datasheet's lens): they "
+            "become priors combined with the network's reading instead of being held fixed."
+        ),
+    ] = None,
     pinhole: PinholeFlag = False,
     lines: LinesFlag = True,
     exif: ExifFlag = True,
@@ -296,6 +308,11 @@ def calibrate(
         ):
             if value is not None and not (value > 0 and np.isfinite(value)):
                 raise StereoGeoError(f"{name} must be a positive number, got {value}")
+        if focal_sigma is not None:
+            if not (0 < focal_sigma < 1):
+                raise StereoGeoError(f"--focal-sigma must be a fraction between 0 and 1, got {focal_sigma}")
+            if focal_left is None and focal_right is None:
+                raise StereoGeoError("--focal-sigma needs --focal-left or --focal-right")
         if threads < 0:
             raise StereoGeoError("--threads must be 0 or more")
         names = _formats(formats)
@@ -309,7 +326,10 @@ def calibrate(
         from stereogeo_cli.pipeline import Calibrator
 
         left_image, right_image = load_image(left), load_image(right)
-        calibrator = Calibrator(model, threads=threads, conf=calibrator_conf(pinhole, lines))
+        conf = calibrator_conf(pinhole, lines)
+        if focal_sigma is not None:
+            conf["known_focal_sigma"] = focal_sigma
+        calibrator = Calibrator(model, threads=threads, conf=conf)
         result = calibrator.calibrate(
             left_image, right_image, baseline_m=baseline, focal_left=focal_left, focal_right=focal_right,
             exif=exif_focals((left, right), (left_image, right_image)) if exif else None,

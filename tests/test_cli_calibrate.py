@@ -320,3 +320,21 @@ def test_known_focal_lengths_are_never_held_equal(pair, onnx_model):
     assert report["left"]["focal_px"] == pytest.approx(300) and report["right"]["focal_px"] == pytest.approx(
         315
     )
+
+
+def test_focal_sigma_makes_given_focal_lengths_priors(pair, onnx_model):
+    """``--focal-sigma``: the given focal lengths are combined with the fields' reading (between the two,
+    with a sigma under both), the report names them ``given``; bad values are one-line usage errors."""
+    args = ("calibrate", *pair, "--model", onnx_model, "--json")
+    args += ("--focal-left", "300", "--focal-right", "300")
+    result = invoke(*args, "--focal-sigma", "0.05")
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    for side, prior in zip(("left", "right"), report["focal_prior"], strict=True):
+        assert prior["source"] == "given" and prior["focal_px"] == 300.0
+        low, high = sorted((prior["fields_focal_px"], 300.0))
+        assert low < prior["combined_focal_px"] < high
+        assert report[side]["sigma"]["focal_px"] < min(prior["sigma_px"], prior["fields_sigma_px"])
+    for value in ("0", "1.5", "-0.1"):
+        assert_error(invoke(*args, "--focal-sigma", value), 2, "--focal-sigma")
+    assert_error(invoke("calibrate", *pair, "--model", onnx_model, "--focal-sigma", "0.1"), 2, "--focal-left")
