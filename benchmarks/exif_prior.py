@@ -20,10 +20,9 @@ from PIL import Image
 
 from stereogeo_cli.evaluate import pair_errors, read_dataset
 from stereogeo_cli.io import load_image
-from stereogeo_cli.io.exif import exif_focals
+from stereogeo_cli.io.exif import DIAGONAL_35MM, exif_focals
 from stereogeo_cli.pipeline import Calibrator
 
-DIAGONAL_35MM = math.hypot(36.0, 24.0)
 COLUMNS = (
     ("vFoV (°)", ("left_vfov_error_deg", "right_vfov_error_deg")),
     ("focal (rel.)", ("left_focal_error_rel", "right_focal_error_rel")),

@@ -27,7 +27,7 @@ from stereogeo_cli.geometry import (
     undistort_division,
 )
 from stereogeo_cli.io import StereoCalibration
-from stereogeo_cli.io.exif import ExifFocal
+from stereogeo_cli.io.exif import FocalPrior
 from stereogeo_cli.io.images import check_pair
 from stereogeo_cli.network.runtime import DEPTH_STRIDE, FieldNetwork, ViewFields
 from stereogeo_cli.refine import CameraFit, combine_focal, parse_sigma_inflation, refine_camera
@@ -161,7 +161,7 @@ class Calibrator:
         return None if known_focal is None else view.resize_crop.focal_to_output(known_focal)
 
     def _refine_with_prior(
-        self, view: ViewFields, name: str, known_focal: float | None, prior: ExifFocal | None
+        self, view: ViewFields, name: str, known_focal: float | None, prior: FocalPrior | None
     ) -> tuple[CameraFit, dict | None, str | None]:
         """One camera's fit, its focal length combined with a ``prior`` (from EXIF, or given with a sigma)
         where there is one and no known focal: (fit, the report's entry for the prior or None, a warning or
@@ -175,7 +175,6 @@ class Calibrator:
         fit = self._refine_view(view, known_focal)
         if known_focal is not None or prior is None:
             return fit, None, None
-        fields_sigma = fit.sigma["focal_px"] / fit.focal_px
         focal, sigma = combine_focal(fit.focal_px, fit.sigma["focal_px"], prior.focal_px, prior.sigma_px)
         combined = self._refine_view(view, focal)
         covariance = np.array(combined.covariance, dtype=float)
@@ -183,6 +182,7 @@ class Calibrator:
         covariance[2, 2] = (sigma / focal) ** 2  # of log f
         combined = combined.with_gravity(combined.gravity_up, covariance)
         apart = abs(math.log(fit.focal_px / prior.focal_px))
+        fields_sigma = fit.sigma["focal_px"] / fit.focal_px
         fields_sigma = fields_sigma if math.isfinite(fields_sigma) else 0.0
         sigmas = apart / math.sqrt(prior.sigma_rel**2 + fields_sigma**2)
         warning = None
@@ -260,7 +260,7 @@ class Calibrator:
         baseline_m: float | None = None,
         focal_left: float | None = None,
         focal_right: float | None = None,
-        exif: tuple[tuple[ExifFocal | None, str | None], tuple[ExifFocal | None, str | None]] | None = None,
+        exif: tuple[tuple[FocalPrior | None, str | None], tuple[FocalPrior | None, str | None]] | None = None,
     ) -> CalibrationResult:
         """Calibrate one pair of RGB images [H x W x 3] uint8 (the two sizes may differ).
 
@@ -302,7 +302,10 @@ class Calibrator:
         ):
             found, reason = exif[side]
             if known is not None and self.conf["known_focal_sigma"] > 0:  # a given focal length, softly
-                found, reason = ExifFocal(known, self.conf["known_focal_sigma"], "given", None, "given"), None
+                found, reason = (
+                    FocalPrior(known, self.conf["known_focal_sigma"], "given", None, "given"),
+                    None,
+                )
                 known = None
             fit, priors[side], disagreement = self._refine_with_prior(view, name, known, found)
             fits.append(fit)

@@ -29,10 +29,13 @@ import math
 import os
 from dataclasses import dataclass
 
+from stereogeo_cli.geometry.camera import vfov_from_focal
+from stereogeo_cli.refine.lm import default_conf as refine_conf
+
 SIGMA_35MM = 0.05  # relative 1-sigma of a focal length from FocalLengthIn35mmFilm (module docstring)
 SIGMA_FOCAL_PLANE = 0.08  # ... and from FocalLength with FocalPlaneXResolution
 MAX_SHAPE_CHANGE = 0.01  # |log| of the aspect ratio change beyond which the photo counts as cropped
-VFOV_RANGE_DEG = (5.0, 150.0)  # the refiner's range; a focal length outside it is a broken tag
+DIAGONAL_35MM = math.hypot(36.0, 24.0)  # millimetres: the frame FocalLengthIn35mmFilm refers to
 
 _EXIF_IFD = 0x8769
 _ORIENTATION = 0x0112
@@ -46,13 +49,14 @@ _UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 1e-3}
 
 
 @dataclass(frozen=True)
-class ExifFocal:
-    """A focal length read from EXIF, in pixels of the image as loaded (EXIF orientation applied)."""
+class FocalPrior:
+    """A prior on a focal length, in pixels of the image as loaded (EXIF orientation applied): read from
+    EXIF, or given by the caller with a sigma."""
 
     focal_px: float
     sigma_rel: float  # relative 1-sigma
-    tag: str  # "FocalLengthIn35mmFilm" or "FocalLength"
-    value_mm: float | None  # the tag's value in millimetres (35 mm-equivalent for the first)
+    tag: str  # "FocalLengthIn35mmFilm" or "FocalLength" ("given" for a given one)
+    value_mm: float | None  # the tag's value in millimetres (35 mm-equivalent for the first); None if given
     # "exif"; "given" for a focal length the caller gave with a sigma (pipeline conf known_focal_sigma)
     source: str = "exif"
 
@@ -61,7 +65,7 @@ class ExifFocal:
         return self.focal_px * self.sigma_rel
 
 
-def read_exif_focal(path: str | os.PathLike, width: int, height: int) -> tuple[ExifFocal | None, str | None]:
+def read_exif_focal(path: str | os.PathLike, width: int, height: int) -> tuple[FocalPrior | None, str | None]:
     """The focal length the EXIF of ``path`` records, for the image as loaded (``width`` x ``height``).
 
     Returns ``(focal, None)``, or ``(None, reason)`` when EXIF has focal tags that cannot be used (a cropped
@@ -95,17 +99,17 @@ def read_exif_focal(path: str | os.PathLike, width: int, height: int) -> tuple[E
                 f"{original_w:.0f}x{original_h:.0f}, image {stored_w}x{stored_h})"
             )
     if usable_35mm:
-        found = ExifFocal(
-            focal_35mm * math.hypot(width, height) / math.hypot(36.0, 24.0),
+        found = FocalPrior(
+            focal_35mm * math.hypot(width, height) / DIAGONAL_35MM,
             SIGMA_35MM, "FocalLengthIn35mmFilm", float(focal_35mm),
         )  # fmt: skip
     else:
         resized = stored_w / original_w if original_w else 1.0
-        found = ExifFocal(
+        found = FocalPrior(
             focal_mm * plane_resolution / unit * resized, SIGMA_FOCAL_PLANE, "FocalLength", float(focal_mm)
         )
-    vfov = math.degrees(2.0 * math.atan(height / (2.0 * found.focal_px)))
-    if not VFOV_RANGE_DEG[0] <= vfov <= VFOV_RANGE_DEG[1]:
+    vfov = math.degrees(float(vfov_from_focal(found.focal_px, height)))
+    if not refine_conf["min_vfov_deg"] <= vfov <= refine_conf["max_vfov_deg"]:  # outside the refiner's range
         return None, f"{name}: EXIF focal length not used, {found.tag} gives a vFoV of {vfov:.1f}°"
     return found, None
 
@@ -138,7 +142,7 @@ def _number(value) -> float | None:
     return number if math.isfinite(number) else None
 
 
-def exif_focals(paths, images) -> tuple[tuple[ExifFocal | None, str | None], ...]:
+def exif_focals(paths, images) -> tuple[tuple[FocalPrior | None, str | None], ...]:
     """:func:`read_exif_focal` of each file of a pair, for its image as loaded ([H x W x 3])."""
     return tuple(
         read_exif_focal(path, image.shape[1], image.shape[0])
