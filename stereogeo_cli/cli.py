@@ -531,6 +531,50 @@ def export_onnx_command(
     typer.echo(f"wrote {result['path']} (largest difference from torch {worst:.2e})")
 
 
+@app.command("average-checkpoints")
+def average_checkpoints_command(
+    checkpoints: Annotated[
+        list[Path],
+        typer.Argument(help="Two or more checkpoints (.pt) of one model, e.g. a model and its fine-tune."),
+    ],
+    *,
+    output: Annotated[Path, typer.Option("--output", "-o", help="The checkpoint to write.")],
+    weights: Annotated[
+        str | None,
+        typer.Option(help="One weight per checkpoint, comma-separated, scaled to sum to 1 (default: equal)."),
+    ] = None,
+    model_version: Annotated[
+        str | None, typer.Option(help="A version name for the average (default: the first checkpoint's).")
+    ] = None,
+) -> None:
+    """Average the weights of checkpoints of one model (a model soup; with a model and its own fine-tune,
+    WiSE-FT). Export the result with export-onnx."""
+    try:
+        from stereogeo_cli.network.checkpoint import average_checkpoints, write_checkpoint
+
+        if weights is None:
+            shares = [1.0] * len(checkpoints)
+        else:
+            try:
+                shares = [float(part) for part in weights.split(",")]
+            except ValueError:
+                raise StereoGeoError(
+                    f"--weights must be numbers separated by commas, got {weights!r}"
+                ) from None
+        if output.is_dir():
+            raise StereoGeoError(f"--output {output} is a folder; give the checkpoint file to write")
+        average = average_checkpoints(checkpoints, shares)
+        if model_version is not None:
+            average["model_version"] = model_version
+        write_checkpoint(output, average)
+    except StereoGeoError as error:
+        raise fail(error) from None
+    except Exception as error:  # noqa: BLE001
+        raise _internal(error) from None
+    parts = ", ".join(f"{s['weight']:.3g} × {s['model_version']}" for s in average["averaged_from"])
+    typer.echo(f"wrote {output} ({average.get('model_version', 'unnamed')}: {parts})")
+
+
 @app.command(
     context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": []}
 )

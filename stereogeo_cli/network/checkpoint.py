@@ -6,6 +6,7 @@ may add entries of plain types (optimizer state, RNG state, metrics, ``"training
 
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -16,6 +17,7 @@ import torch
 from stereogeo_cli import __version__
 from stereogeo_cli.errors import StereoGeoError
 from stereogeo_cli.network.model import StereoGeoNet
+from stereogeo_cli.network.runtime import file_sha256
 
 
 def give_default_permissions(path: str | os.PathLike) -> None:
@@ -26,9 +28,7 @@ def give_default_permissions(path: str | os.PathLike) -> None:
 
 
 def save_checkpoint(path: str | os.PathLike, model: StereoGeoNet, step: int = 0, **extra: Any) -> Path:
-    """Write a checkpoint atomically (temporary file, then rename) and return its path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write a checkpoint of ``model`` atomically (temporary file, then rename) and return its path."""
     checkpoint = {
         "model": model.state_dict(),
         "conf": dict(model.conf),
@@ -36,6 +36,14 @@ def save_checkpoint(path: str | os.PathLike, model: StereoGeoNet, step: int = 0,
         "stereogeo_version": __version__,
         **extra,
     }
+    return write_checkpoint(path, checkpoint)
+
+
+def write_checkpoint(path: str | os.PathLike, checkpoint: dict[str, Any]) -> Path:
+    """Write a checkpoint dict atomically (temporary file, then rename): a file already at ``path`` stays
+    whole until the new one is complete. Returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
@@ -98,3 +106,81 @@ def init_from_checkpoint(model: StereoGeoNet, path: str | os.PathLike) -> list[s
         raise StereoGeoError(f"checkpoint {path} shares no weights with the model")
     model.load_state_dict(taken, strict=False)
     return sorted(set(own) - set(taken))
+
+
+# Entries of a training checkpoint that belong to its run, not to its weights: an average leaves them out.
+_RUN_STATE = ("optimizer", "rng", "best", "teacher_sha256")
+
+
+def average_checkpoints(paths: list[str | os.PathLike], weights: list[float]) -> dict[str, Any]:
+    """The weighted average of the weights of several checkpoints of one architecture (a "model soup";
+    with a model and its own fine-tune, WiSE-FT): a checkpoint dict that :func:`load_checkpoint` and
+    ``export-onnx`` read.
+
+    Fine-tunes that started from the same weights lie in one basin of the loss, where their average is a
+    model of its own, often better than either (Wortsman et al. 2022). Floating-point tensors are averaged
+    (in float64, stored in their own dtype); integer buffers (batch-norm step counts) are the first
+    checkpoint's. The other entries are the first checkpoint's, without its run state (optimizer, RNG),
+    with ``averaged_from`` (each input's path, version, SHA-256 and weight) and the lineage extended.
+
+    Args:
+        paths: two or more checkpoints.
+        weights: one positive weight per checkpoint; they are scaled to sum to 1.
+    Raises:
+        StereoGeoError: unreadable files, weights that do not fit, or checkpoints of different models.
+    """
+    if len(paths) < 2:
+        raise StereoGeoError("averaging needs at least two checkpoints")
+    if len(weights) != len(paths):
+        raise StereoGeoError(f"{len(paths)} checkpoints need {len(paths)} weights, got {len(weights)}")
+    if not all(math.isfinite(w) and w > 0 for w in weights):
+        raise StereoGeoError(f"the weights must be positive numbers, got {', '.join(map(str, weights))}")
+    total = float(sum(weights))
+    shares = [float(w) / total for w in weights]
+    checkpoints = []
+    for path in paths:
+        checkpoint = _read(path)
+        if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get("model"), dict):
+            raise StereoGeoError(f"{path} is not a stereogeo checkpoint (no 'model' entry)")
+        checkpoints.append(checkpoint)
+    first = checkpoints[0]
+    for path, checkpoint in zip(paths[1:], checkpoints[1:], strict=True):
+        if {**LEGACY_CONF, **checkpoint.get("conf", {})} != {**LEGACY_CONF, **first.get("conf", {})}:
+            raise StereoGeoError(f"{path} is a different model from {paths[0]} (their 'conf' entries differ)")
+        own, other = first["model"], checkpoint["model"]
+        if set(own) != set(other) or any(tuple(own[k].shape) != tuple(other[k].shape) for k in own):
+            raise StereoGeoError(f"{path} does not hold the same tensors as {paths[0]}")
+    averaged = {}
+    for name, tensor in first["model"].items():
+        if tensor.is_floating_point():
+            mean = sum(
+                share * c["model"][name].double() for share, c in zip(shares, checkpoints, strict=True)
+            )
+            averaged[name] = mean.to(tensor.dtype)
+        else:
+            averaged[name] = tensor.clone()
+    sources = [
+        {
+            "path": str(path),
+            "model_version": str(c.get("model_version", "unnamed")),
+            "sha256": file_sha256(path),
+            "weight": share,
+        }
+        for path, c, share in zip(paths, checkpoints, shares, strict=True)
+    ]
+    summary = " + ".join(f"{s['weight']:.3g} × {s['model_version']}" for s in sources)
+    result = {k: v for k, v in first.items() if k not in _RUN_STATE}
+    result.update(
+        model=averaged,
+        stereogeo_version=__version__,
+        averaged_from=sources,
+        lineage=f"{first['lineage']} -> weight average {summary}" if first.get("lineage") else summary,
+    )
+    try:
+        model_from_checkpoint(result)  # the same check load_checkpoint makes
+    except (RuntimeError, ValueError, KeyError, TypeError) as exc:
+        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise StereoGeoError(
+            f"the average of {paths[0]} and the others does not fit the model: {first_line}"
+        ) from None
+    return result
