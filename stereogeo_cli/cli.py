@@ -546,6 +546,13 @@ def average_checkpoints_command(
     model_version: Annotated[
         str | None, typer.Option(help="A version name for the average (default: the first checkpoint's).")
     ] = None,
+    lineage: Annotated[
+        str | None,
+        typer.Option(
+            help="How the inputs were made, appended to the lineage (the first checkpoint's lineage, then "
+            "'weight average ...', then this)."
+        ),
+    ] = None,
 ) -> None:
     """Average the weights of checkpoints of one model (a model soup; with a model and its own fine-tune,
     WiSE-FT). Export the result with export-onnx."""
@@ -566,6 +573,8 @@ def average_checkpoints_command(
         average = average_checkpoints(checkpoints, shares)
         if model_version is not None:
             average["model_version"] = model_version
+        if lineage:
+            average["lineage"] = f"{average['lineage']} ({lineage})"
         write_checkpoint(output, average)
     except StereoGeoError as error:
         raise fail(error) from None

@@ -52,12 +52,24 @@ def test_equal_checkpoints_average_to_themselves_and_the_cli_writes_a_loadable_f
     b_path, b = _checkpoint(tmp_path / "b.pt", 2, model_version="m-b")
     out = tmp_path / "soup" / "avg.pt"
     result = CliRunner().invoke(
-        app, ["average-checkpoints", str(a_path), str(b_path), "-o", str(out), "--model-version", "soup-1"]
+        app,
+        [
+            "average-checkpoints",
+            str(a_path),
+            str(b_path),
+            "-o",
+            str(out),
+            "--model-version",
+            "soup-1",
+            "--lineage",
+            "b: a fine-tune",
+        ],
     )
     assert result.exit_code == 0, result.output
     assert "0.5 × m-a, 0.5 × m-b" in result.output
     loaded, checkpoint = load_checkpoint(out)
     assert checkpoint["model_version"] == "soup-1"
+    assert checkpoint["lineage"] == "0.5 × m-a + 0.5 × m-b (b: a fine-tune)"
     x = torch.rand(1, 3, 64, 96)
     with torch.no_grad():
         mean = {
