@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +58,11 @@ default_conf = {
     # after sharing (66.7 % roll, 67.3 % pitch; 0.7 gave 66.0 % and 65.2 %). Those are the fields' figures;
     # with vertical lines (below) their sigma_scale was set after sharing at this correlation (0.95 changed
     # the coverage by under 1 point).
+    # With too few matches to tell the two focal lengths' ratio (the pose from the pose head), two images of
+    # one size whose fields read focal lengths this many combined sigmas apart or closer are taken for one
+    # camera model, and both get the two reads combined (the fusion holds focal lengths equal likewise where
+    # its matches cannot tell the ratio from 1); 0: each camera keeps its own
+    "equal_focal_fields_sigmas": 1.0,
     "share_gravity": True,
     "gravity_view_correlation": 0.85,
     # vertical line segments set the gravity together with the fields, after the fusion has measured the
@@ -105,6 +110,37 @@ def _timed(function, *args):
 
 def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
+
+
+def hold_alike_focals(
+    pose: RelativePose, fit_left: CameraFit, fit_right: CameraFit, limit: float
+) -> RelativePose:
+    """``pose`` (from the pose head: no matches to tell the two focal lengths' ratio) with both focal lengths
+    moved to the two fields' reads combined (``focal_scale``; ``equal_focals`` set), where the images are
+    one size and the reads are at most ``limit`` combined sigmas apart; otherwise ``pose`` as it is.
+
+    Most rigs pair two identical cameras, and the fusion holds focal lengths equal where its matches cannot
+    tell their ratio from 1; without matches only the fields can tell it. Each camera keeps its own relative
+    sigma: the two reads see one scene, and their errors are correlated."""
+    if limit <= 0 or (fit_left.width, fit_left.height) != (fit_right.width, fit_right.height):
+        return pose
+    focals = (fit_left.focal_px, fit_right.focal_px)
+    sigmas = (fit_left.sigma["focal_px"], fit_right.sigma["focal_px"])
+    rel = [s / f for s, f in zip(sigmas, focals, strict=True)]
+    if not all(math.isfinite(r) and r > 0 for r in rel):
+        return pose
+    if abs(math.log(focals[0] / focals[1])) > limit * math.hypot(*rel):
+        return pose
+    focal, _ = combine_focal(focals[0], sigmas[0], focals[1], sigmas[1])
+    return replace(
+        pose,
+        focal_scale=(focal / focals[0], focal / focals[1]),
+        equal_focals=True,
+        notes=[
+            *pose.notes,
+            "focal lengths held equal: no matches to tell them apart, and the fields read them alike",
+        ],
+    )
 
 
 class Calibrator:
@@ -357,6 +393,8 @@ class Calibrator:
                 None if edge_lens[1] is None else edge_lens[1].division_k(fit_right.focal_px),
             ),
         )  # fmt: skip
+        if pose.source == "pose_head" and held == [None, None]:
+            pose = hold_alike_focals(pose, fit_left, fit_right, self.conf["equal_focal_fields_sigmas"])
         timing["fusion"] = (time.perf_counter() - tick) * 1e3
         warnings.extend(pose.notes)
         # the matches refine the focal lengths too (their ratio always; more where the cameras rotate)
@@ -438,7 +476,8 @@ class Calibrator:
                     "sigma_direction_deg": _finite(pose.sigma_direction_deg),
                     "gravity_error_deg": pose.gravity_error_deg,
                     "rotation_deg": float(np.degrees(rotation_angle(pose.R))),
-                    # the two focal lengths held equal: the matches could not tell their ratio from 1
+                    # the two focal lengths held equal: the matches could not tell their ratio from 1 (or, with
+                    # too few matches, the fields read them alike)
                     "equal_focals": pose.equal_focals,
                     # the fitted radial distortion: division-model k per camera (left, right) and its sigma
                     "distortion_k": [float(k) for k in pose.distortion],

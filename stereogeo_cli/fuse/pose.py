@@ -68,7 +68,8 @@ class RelativePose:
     sigma_direction_deg: float = float("inf")
     gravity_error_deg: float | None = None  # angle between R·g_left and g_right (the fields' gravity)
     focal_scale: tuple[float, float] = (1.0, 1.0)  # refined focal / given focal, per camera
-    # the two focal lengths were held equal (the matches could not tell their ratio from 1)
+    # the two focal lengths were held equal (the matches could not tell their ratio from 1; without matches,
+    # pipeline.hold_alike_focals: the fields read them alike)
     equal_focals: bool = False
     # radial distortion per camera: the division-model k (undistorted = distorted / (1 + k·r²)) in the
     # normalised coordinates of the refined K, and its 1-sigma (0 and inf: not fitted)

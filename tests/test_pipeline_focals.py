@@ -1,0 +1,52 @@
+"""Two cameras' focal lengths without matches (pipeline.hold_alike_focals): held equal where the fields read
+them alike, left apart otherwise."""
+
+import math
+
+import numpy as np
+import pytest
+
+from stereogeo_cli.fuse import RelativePose
+from stereogeo_cli.pipeline import hold_alike_focals
+from stereogeo_cli.refine.lm import CameraFit
+
+
+def _fit(focal, rel_sigma, width=640, height=480):
+    vfov = math.degrees(2 * math.atan(height / (2 * focal)))
+    sigma = {"focal_px": focal * rel_sigma, "vfov_deg": 1.0, "roll_deg": 1.0, "pitch_deg": 1.0}
+    return CameraFit(
+        width, height, focal, np.array([0.0, -1.0, 0.0]), 0.0, 0.0, vfov, sigma, np.eye(3), 0.0, 1, True
+    )
+
+
+def _head_pose():
+    return RelativePose(
+        R=np.eye(3), t_direction=np.array([-1.0, 0, 0]), source="pose_head", notes=["too few"]
+    )
+
+
+def test_alike_reads_are_combined_by_their_sigmas_and_held_equal():
+    left, right = _fit(500.0, 0.05), _fit(530.0, 0.10)  # 5.8 % apart, 1 combined sigma is 11.2 %
+    pose = hold_alike_focals(_head_pose(), left, right, 1.0)
+    assert pose.equal_focals and len(pose.notes) == 2 and pose.notes[0] == "too few"
+    # inverse variance in log f: weights 1/0.05² and 1/0.10², 4 : 1
+    expected = math.exp((4 * math.log(500.0) + math.log(530.0)) / 5)
+    assert left.focal_px * pose.focal_scale[0] == pytest.approx(expected, rel=1e-12)
+    assert right.focal_px * pose.focal_scale[1] == pytest.approx(expected, rel=1e-12)
+    # with the same sigmas, the geometric mean
+    same = hold_alike_focals(_head_pose(), _fit(500.0, 0.08), _fit(540.0, 0.08), 1.0)
+    assert 500.0 * same.focal_scale[0] == pytest.approx(math.sqrt(500.0 * 540.0), rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    "left, right, limit",
+    [
+        (_fit(500.0, 0.05), _fit(600.0, 0.05), 1.0),  # 18 % apart: more than 1 combined sigma (7.1 %)
+        (_fit(500.0, 0.05), _fit(510.0, 0.05, width=800), 1.0),  # images of two sizes
+        (_fit(500.0, 0.05), _fit(510.0, 0.05), 0.0),  # switched off
+        (_fit(500.0, float("inf")), _fit(510.0, 0.05), 1.0),  # a read without a sigma
+    ],
+)
+def test_reads_apart_or_not_comparable_are_left_alone(left, right, limit):
+    pose = _head_pose()
+    assert hold_alike_focals(pose, left, right, limit) is pose
