@@ -51,6 +51,11 @@ default_conf = {
     # lowered the mean errors on renders but raised the median roll error and the real-image vFoV errors
     # (docs/network.md, "Mirror averaging").
     "flip": False,
+    # With too few matches to tell the two focal lengths' ratio (the pose from the pose head), two images of
+    # one size whose fields read focal lengths this many combined sigmas apart or closer are taken for one
+    # camera model, and both get the two reads combined (the fusion holds focal lengths equal likewise where
+    # its matches cannot tell the ratio from 1); 0: each camera keeps its own
+    "equal_focal_fields_sigmas": 1.0,
     # Each camera's gravity averaged with the other camera's seen through the fused R, the focal lengths left
     # as they are (stereogeo_cli/fuse/gravity.py). The correlation of the two cameras' gravity errors
     # only widens the reported sigmas: the errors' own correlation on the validation renders is 0.67 (pitch)
@@ -58,11 +63,6 @@ default_conf = {
     # after sharing (66.7 % roll, 67.3 % pitch; 0.7 gave 66.0 % and 65.2 %). Those are the fields' figures;
     # with vertical lines (below) their sigma_scale was set after sharing at this correlation (0.95 changed
     # the coverage by under 1 point).
-    # With too few matches to tell the two focal lengths' ratio (the pose from the pose head), two images of
-    # one size whose fields read focal lengths this many combined sigmas apart or closer are taken for one
-    # camera model, and both get the two reads combined (the fusion holds focal lengths equal likewise where
-    # its matches cannot tell the ratio from 1); 0: each camera keeps its own
-    "equal_focal_fields_sigmas": 1.0,
     "share_gravity": True,
     "gravity_view_correlation": 0.85,
     # vertical line segments set the gravity together with the fields, after the fusion has measured the
@@ -476,8 +476,8 @@ class Calibrator:
                     "sigma_direction_deg": _finite(pose.sigma_direction_deg),
                     "gravity_error_deg": pose.gravity_error_deg,
                     "rotation_deg": float(np.degrees(rotation_angle(pose.R))),
-                    # the two focal lengths held equal: the matches could not tell their ratio from 1 (or, with
-                    # too few matches, the fields read them alike)
+                    # the two focal lengths held equal: the matches could not tell their ratio from 1 (or,
+                    # with too few matches, the fields read them alike)
                     "equal_focals": pose.equal_focals,
                     # the fitted radial distortion: division-model k per camera (left, right) and its sigma
                     "distortion_k": [float(k) for k in pose.distortion],

@@ -50,3 +50,30 @@ def test_alike_reads_are_combined_by_their_sigmas_and_held_equal():
 def test_reads_apart_or_not_comparable_are_left_alone(left, right, limit):
     pose = _head_pose()
     assert hold_alike_focals(pose, left, right, limit) is pose
+
+
+def test_calibrate_without_matches_holds_alike_focal_lengths_equal():
+    """The bundled pair with matching switched off: the pose head gives the pose, and with a limit wide enough
+    for the two reads (18 % apart, about 1.1 combined sigmas) both cameras get one focal length."""
+    from pathlib import Path
+
+    from stereogeo_cli.io.images import load_image
+    from stereogeo_cli.pipeline import Calibrator
+
+    examples = Path(__file__).resolve().parent.parent / "examples"
+    left, right = load_image(examples / "left.png"), load_image(examples / "right.png")
+    results = {}
+    for limit in (0.0, 3.0):
+        calibrator = Calibrator(
+            threads=2, conf={"fuse": {"min_matches": 10**9}, "equal_focal_fields_sigmas": limit}
+        )
+        results[limit] = calibrator.calibrate(left, right)
+    apart, held = results[0.0], results[3.0]
+    assert apart.pose.source == held.pose.source == "pose_head"
+    assert not apart.pose.equal_focals and held.pose.equal_focals
+    f_left, f_right = apart.calibration.K_left[0, 0], apart.calibration.K_right[0, 0]
+    assert abs(math.log(f_left / f_right)) > 0.1
+    assert held.calibration.K_left[0, 0] == pytest.approx(held.calibration.K_right[0, 0], rel=1e-9)
+    assert min(f_left, f_right) < held.calibration.K_left[0, 0] < max(f_left, f_right)
+    assert held.report()["pose"]["equal_focals"] is True
+    assert any("held equal" in w for w in held.warnings)
