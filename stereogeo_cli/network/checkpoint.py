@@ -71,11 +71,16 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[StereoGeoNet, dict[str, An
     checkpoint = _read(path)
     if not isinstance(checkpoint, dict) or "model" not in checkpoint or "conf" not in checkpoint:
         raise StereoGeoError(f"{path} is not a stereogeo checkpoint (no 'model' and 'conf' entries)")
+    return _built(checkpoint, f"checkpoint {path}"), checkpoint
+
+
+def _built(checkpoint: dict[str, Any], what: str) -> StereoGeoNet:
+    """:func:`model_from_checkpoint`, its failures as a one-line StereoGeoError naming ``what``."""
     try:
-        return model_from_checkpoint(checkpoint), checkpoint
+        return model_from_checkpoint(checkpoint)
     except (RuntimeError, ValueError, KeyError, TypeError) as exc:
         first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise StereoGeoError(f"checkpoint {path} does not fit the model: {first_line}") from None
+        raise StereoGeoError(f"{what} does not fit the model: {first_line}") from None
 
 
 # Options added after models were shipped: their values for a checkpoint that predates them.
@@ -176,11 +181,5 @@ def average_checkpoints(paths: list[str | os.PathLike], weights: list[float]) ->
         averaged_from=sources,
         lineage=f"{first['lineage']} -> weight average {summary}" if first.get("lineage") else summary,
     )
-    try:
-        model_from_checkpoint(result)  # the same check load_checkpoint makes
-    except (RuntimeError, ValueError, KeyError, TypeError) as exc:
-        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise StereoGeoError(
-            f"the average of {paths[0]} and the others does not fit the model: {first_line}"
-        ) from None
+    _built(result, f"the average of {paths[0]} and the others")  # the check load_checkpoint makes
     return result
