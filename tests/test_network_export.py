@@ -213,7 +213,14 @@ def test_export_cli_records_the_pose_heads_sigmas_and_calibrate_leans_on_them(tm
     ckpt = save_checkpoint(tmp_path / "small.pt", model, step=7, training_data="unit-test renders")
     out = tmp_path / "small.onnx"
     runner = CliRunner()
-    for option, value in (("--pose-sigmas", "1.5"), ("--sigma-inflation", "2,3"), ("--sigma-inflation", "0")):
+    bad_values = (
+        ("--pose-sigmas", "1.5"),
+        ("--sigma-inflation", "2,3"),
+        ("--sigma-inflation", "0"),
+        ("--photo-sigma-scale", "-1"),
+        ("--photo-sigma-scale", "1,x,2"),
+    )
+    for option, value in bad_values:
         bad = runner.invoke(app, ["export-onnx", str(ckpt), "-o", str(out), option, value])
         assert bad.exit_code == 2 and option in bad.output and "Traceback" not in bad.output
         assert not out.exists()
@@ -230,6 +237,8 @@ def test_export_cli_records_the_pose_heads_sigmas_and_calibrate_leans_on_them(tm
             "26k renders",
             "--sigma-inflation",
             "37.8, 43.1,33.2",
+            "--photo-sigma-scale",
+            "1.5,1.2,1.25",
         ],
     )
     assert good.exit_code == 0, good.output
@@ -241,6 +250,8 @@ def test_export_cli_records_the_pose_heads_sigmas_and_calibrate_leans_on_them(tm
     assert metadata["sigma_inflation"] == "37.8,43.1,33.2"
     calibrator = Calibrator(out)
     assert calibrator.conf["refine"]["sigma_inflation"] == (37.8, 43.1, 33.2)
+    assert metadata["photo_sigma_scale"] == "1.5,1.2,1.25"
+    assert calibrator._photo_sigma_scale == (1.5, 1.2, 1.25)
     assert calibrator._learned_scale_sigma == 0.6
     assert calibrator.conf["fuse"]["prior_rotation_sigma_deg"] == 1.5
     assert calibrator.conf["fuse"]["prior_direction_sigma_deg"] == 7.0

@@ -39,14 +39,16 @@ default_conf = {
 }
 
 
-def parse_sigma_inflation(text: str) -> float | tuple[float, float, float]:
-    """A model's ``sigma_inflation`` metadata: one factor ``"38"`` or three ``"37.8,43.1,33.2"`` for roll,
-    pitch and vFoV. Raises ValueError unless every factor is a positive number."""
-    values = tuple(float(part) for part in str(text).split(","))
+def parse_sigma_inflation(text: str, what: str = "sigma inflation") -> float | tuple[float, float, float]:
+    """A model's ``sigma_inflation`` (or ``photo_sigma_scale``) metadata: one factor ``"38"`` or three
+    ``"37.8,43.1,33.2"`` for roll, pitch and vFoV. Raises ValueError unless every factor is a positive
+    number."""
+    try:
+        values = tuple(float(part) for part in str(text).split(","))
+    except ValueError:
+        values = ()
     if len(values) not in (1, 3) or not all(np.isfinite(v) and v > 0 for v in values):
-        raise ValueError(
-            f"sigma inflation must be one or three positive numbers (roll,pitch,vfov), got {text!r}"
-        )
+        raise ValueError(f"{what} must be one or three positive numbers (roll,pitch,vfov), got {text!r}")
     return values[0] if len(values) == 1 else values
 
 
