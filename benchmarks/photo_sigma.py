@@ -50,7 +50,7 @@ def main() -> None:
                 z[kind][q] += [
                     row[f"{v}_{q}_z"] for v in ("left", "right") if row.get(f"{v}_{q}_z") is not None
                 ]
-    current = calibrator._photo_sigma_scale
+    current = calibrator.photo_sigma_scale
     print(f"model {args.model}: photo_sigma_scale now {','.join(f'{c:g}' for c in current)}")
     for kind, found in z.items():
         if not found["vfov"]:

@@ -92,23 +92,25 @@ BASELINES = {
 }
 
 
-def camera_errors(fit, cam: dict, view: str) -> dict:
+def camera_errors(fit, cam: dict, view: str, sigma: dict | None = None) -> dict:
     """One camera's errors against its ground truth (a ``calib.jsonl`` camera), keys prefixed by ``view``:
     vFoV error and signed bias (> 0 reads the lens too wide), relative focal error, and roll and pitch
-    errors where gravity is known, each with its error/sigma ratio (``_z``)."""
+    errors where gravity is known, each with its error/sigma ratio (``_z``; ``sigma``: the reported sigmas,
+    by default the fit's own)."""
     row: dict = {}
+    sigma = fit.sigma if sigma is None else sigma
     K = np.asarray(cam["K"], dtype=float)
     vfov = math.degrees(float(vfov_from_focal(K[1, 1], cam["height"])))
     row[f"{view}_vfov_error_deg"] = abs(fit.vfov_deg - vfov)
     row[f"{view}_vfov_bias_deg"] = fit.vfov_deg - vfov
-    row[f"{view}_vfov_z"] = _z(row[f"{view}_vfov_error_deg"], fit.sigma["vfov_deg"])
+    row[f"{view}_vfov_z"] = _z(row[f"{view}_vfov_error_deg"], sigma["vfov_deg"])
     row[f"{view}_focal_error_rel"] = abs(fit.focal_px / (0.5 * (K[0, 0] + K[1, 1])) - 1)
     if cam.get("gravity_up") is not None:
         roll, pitch = (math.degrees(float(a)) for a in roll_pitch_from_gravity(np.asarray(cam["gravity_up"])))
         row[f"{view}_roll_error_deg"] = abs((fit.roll_deg - roll + 180) % 360 - 180)
         row[f"{view}_pitch_error_deg"] = abs(fit.pitch_deg - pitch)
-        row[f"{view}_roll_z"] = _z(row[f"{view}_roll_error_deg"], fit.sigma["roll_deg"])
-        row[f"{view}_pitch_z"] = _z(row[f"{view}_pitch_error_deg"], fit.sigma["pitch_deg"])
+        row[f"{view}_roll_z"] = _z(row[f"{view}_roll_error_deg"], sigma["roll_deg"])
+        row[f"{view}_pitch_z"] = _z(row[f"{view}_pitch_error_deg"], sigma["pitch_deg"])
     return row
 
 
@@ -117,11 +119,11 @@ def pair_errors(result, record: dict) -> dict:
     camera's (:func:`camera_errors`) and, where the record has a pose, the rotation's, the translation's
     and its direction's and length's, each with its error/sigma ratio (``_z``)."""
     row: dict = {}
-    for view, fit in (("left", result.left), ("right", result.right)):
-        row.update(camera_errors(fit, record[view], view))
+    c = result.calibration
+    for view, fit, sigma in (("left", result.left, c.sigma_left), ("right", result.right, c.sigma_right)):
+        row.update(camera_errors(fit, record[view], view, sigma))
     if record.get("R") is None:
         return row
-    c = result.calibration
     row["rotation_error_deg"] = math.degrees(rotation_error(c.R, np.asarray(record["R"])))
     T = np.asarray(record["T"], dtype=float)
     if np.linalg.norm(T) > 1e-9:

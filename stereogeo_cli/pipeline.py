@@ -90,7 +90,9 @@ class CalibrationResult:
     """Everything one pair gave: the calibration to write, and the pieces it came from."""
 
     calibration: StereoCalibration
-    left: CameraFit  # in the pixels of the original left image
+    # in the pixels of the original left image, with the sigmas the estimation used (calibration.sigma_left
+    # holds the ones reported: Calibrator.reported_sigma)
+    left: CameraFit
     right: CameraFit
     pose: RelativePose
     warnings: list[str] = field(default_factory=list)
@@ -159,7 +161,7 @@ class Calibrator:
         # The refiner's sigmas treat field cells as independent; a network's errors are correlated, and the
         # model records how much to widen them (measured on validation data when it was exported).
         # It also records how much wider the reported sigmas must be on real photographs, where the network
-        # errs more than on the renders those factors were measured on (photo_sigma_scale; see calibrate).
+        # errs more than on the renders those factors were measured on (photo_sigma_scale: reported_sigma).
         try:
             inflation = parse_sigma_inflation(self.network.metadata.get("sigma_inflation", "1"))
             photo = parse_sigma_inflation(
@@ -168,7 +170,7 @@ class Calibrator:
         except ValueError as error:
             raise StereoGeoError(f"model file {self.model_path} has invalid metadata: {error}") from None
         self.conf["refine"] = {"sigma_inflation": inflation, **self.conf["refine"]}
-        self._photo_sigma_scale = photo if isinstance(photo, tuple) else (photo, photo, photo)
+        self.photo_sigma_scale = photo if isinstance(photo, tuple) else (photo, photo, photo)
         # The pose head's own 1-sigma (68th percentiles of its validation errors), when the model records it:
         # how strongly the fusion leans on it, and its sigma when it is all there is.
         measured = {
@@ -188,14 +190,18 @@ class Calibrator:
         self.conf["scale"] = {**scale_conf, **self.conf["scale"]}
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-matching")
 
-    def _as_reported(self, fit: CameraFit, focal_from_fields: bool) -> CameraFit:
-        """The fit with its roll, pitch and (if the fields gave it) focal sigmas widened for photographs."""
-        roll, pitch, vfov = self._photo_sigma_scale
+    def reported_sigma(self, fit: CameraFit, focal_from_fields: bool = True) -> dict[str, float]:
+        """The sigmas to report for a fit: every sigma of the estimation weighs one piece of evidence against
+        another; the ones reported are widened by the model's photo_sigma_scale, measured end to end on crops
+        of real panoramas, so that they hold 68 % of the errors on photographs. The estimates do not change.
+        A focal length that was given or had an EXIF prior keeps its sigma: that scale was not measured with
+        one."""
+        roll, pitch, vfov = self.photo_sigma_scale
         sigma = {**fit.sigma, "roll_deg": fit.sigma["roll_deg"] * roll}
         sigma["pitch_deg"] = fit.sigma["pitch_deg"] * pitch
         if focal_from_fields:
             sigma.update(focal_px=fit.sigma["focal_px"] * vfov, vfov_deg=fit.sigma["vfov_deg"] * vfov)
-        return replace(fit, sigma=sigma)
+        return sigma
 
     def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:
         """One camera's fit to its fields, in the original image's pixels."""
@@ -435,14 +441,6 @@ class Calibrator:
                 fit_left, fit_right, pose.R, math.radians(pose.sigma_rotation_deg) / math.sqrt(3),
                 self.conf["gravity_view_correlation"],
             )  # fmt: skip
-        # Every sigma so far weighs one piece of evidence against another. The ones reported are widened by
-        # the model's photo_sigma_scale, measured end to end on crops of real panoramas, so that they hold
-        # 68 % of the errors on photographs. A focal length that was given or had an EXIF prior keeps its
-        # sigma: that scale was not measured with one.
-        fit_left, fit_right = (
-            self._as_reported(fit, focal_from_fields=priors[side] is None and held[side] is None)
-            for side, fit in enumerate((fit_left, fit_right))
-        )
         K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
         K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
         D_left, D_right = (
@@ -488,7 +486,8 @@ class Calibrator:
             image_size_right=(fit_right.width, fit_right.height),
             R=pose.R, T=pose.translation(baseline), D_left=D_left, D_right=D_right,
             gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
-            sigma_left=fit_left.sigma, sigma_right=fit_right.sigma,
+            sigma_left=self.reported_sigma(fit_left, priors[0] is None and held[0] is None),
+            sigma_right=self.reported_sigma(fit_right, priors[1] is None and held[1] is None),
             scale_source=scale_source, matches_found=pose.matches_found, matches_inliers=pose.inliers,
             timing_ms=timing, model_file=self.model_path.name, model_sha256=self.network.model_sha256,
             notes="; ".join(warnings),

@@ -413,3 +413,27 @@ def test_same_rig_on_raw_euroc_finds_the_lens_and_the_focal(shared_data, tmp_pat
         assert rig[side]["focal_px"] == pytest.approx(truth[0][side]["K"][0][0], rel=0.03)
     single = [np.degrees(rotation_error(np.array(o.report["R"]), R_true)) for o in summary.outcomes]
     assert np.degrees(rotation_error(np.array(rig["R"]), R_true)) < np.median(single), single
+
+
+def test_same_rig_reports_the_focal_sigma_widened_as_single_pairs_do(small_images, onnx_model, tmp_path):
+    import onnx
+
+    model = onnx.load(str(onnx_model))
+    entries = {p.key: p for p in model.metadata_props}
+    if "photo_sigma_scale" not in entries:
+        entries["photo_sigma_scale"] = model.metadata_props.add(key="photo_sigma_scale")
+    entries["photo_sigma_scale"].value = "1,1,3"
+    wide = tmp_path / "wide.onnx"
+    onnx.save(model, str(wide))
+    folder = pair_folder(tmp_path / "in", small_images, ("a", "b"))
+    sigmas = {}
+    for name, path in (("plain", onnx_model), ("wide", wide)):
+        out = tmp_path / name
+        args = ("batch-calibrate", folder, "-o", out, "--model", path, "--same-rig", "--baseline", "0.12")
+        result = invoke(*args)
+        assert result.exit_code == 0, result.output
+        sigmas[name] = json.loads((out / "rig" / "report.json").read_text())["left"]["sigma"]["focal_px"]
+    from stereogeo_cli.pipeline import Calibrator
+
+    base = Calibrator(onnx_model).photo_sigma_scale[2]  # the shipped model's own, 1 for an untrained one
+    assert sigmas["wide"] == pytest.approx(sigmas["plain"] * 3.0 / base, rel=1e-9)

@@ -251,7 +251,7 @@ def test_export_cli_records_the_pose_heads_sigmas_and_calibrate_leans_on_them(tm
     calibrator = Calibrator(out)
     assert calibrator.conf["refine"]["sigma_inflation"] == (37.8, 43.1, 33.2)
     assert metadata["photo_sigma_scale"] == "1.5,1.2,1.25"
-    assert calibrator._photo_sigma_scale == (1.5, 1.2, 1.25)
+    assert calibrator.photo_sigma_scale == (1.5, 1.2, 1.25)
     assert calibrator._learned_scale_sigma == 0.6
     assert calibrator.conf["fuse"]["prior_rotation_sigma_deg"] == 1.5
     assert calibrator.conf["fuse"]["prior_direction_sigma_deg"] == 7.0

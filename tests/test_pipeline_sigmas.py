@@ -10,22 +10,29 @@ from stereogeo_cli.pipeline import Calibrator
 def test_the_photo_sigma_scale_widens_the_reported_sigmas_only(onnx_model, example_pair):
     left, right = (load_image(path) for path in example_pair)
     plain, photo = Calibrator(onnx_model, threads=1), Calibrator(onnx_model, threads=1)
-    plain._photo_sigma_scale, photo._photo_sigma_scale = (1.0, 1.0, 1.0), (1.5, 1.2, 1.25)
+    plain.photo_sigma_scale, photo.photo_sigma_scale = (1.0, 1.0, 1.0), (1.5, 1.2, 1.25)
+    factors = {"roll_deg": 1.5, "pitch_deg": 1.2, "vfov_deg": 1.25, "focal_px": 1.25}
     a, b = plain.calibrate(left, right), photo.calibrate(left, right)
     for fa, fb in ((a.left, b.left), (a.right, b.right)):
-        # the estimates are the same: the scale is applied after every sigma has been used
+        # the estimates and the sigmas they were made with are the same
         assert fb.focal_px == fa.focal_px and fb.roll_deg == fa.roll_deg and fb.pitch_deg == fa.pitch_deg
-        assert fb.sigma["roll_deg"] == pytest.approx(1.5 * fa.sigma["roll_deg"], rel=1e-12)
-        assert fb.sigma["pitch_deg"] == pytest.approx(1.2 * fa.sigma["pitch_deg"], rel=1e-12)
-        assert fb.sigma["vfov_deg"] == pytest.approx(1.25 * fa.sigma["vfov_deg"], rel=1e-12)
-        assert fb.sigma["focal_px"] == pytest.approx(1.25 * fa.sigma["focal_px"], rel=1e-12)
+        assert fb.sigma == fa.sigma
     np.testing.assert_array_equal(a.calibration.R, b.calibration.R)
     np.testing.assert_array_equal(a.calibration.T, b.calibration.T)
-    # what the files and report.json carry
-    assert b.calibration.sigma_left["roll_deg"] == pytest.approx(1.5 * a.calibration.sigma_left["roll_deg"])
-    # a focal length the user gave keeps its own sigma; its camera's gravity sigmas still widen
+    # what the files and report.json carry is widened
+    for sa, sb in (
+        (a.calibration.sigma_left, b.calibration.sigma_left),
+        (a.calibration.sigma_right, b.calibration.sigma_right),
+    ):
+        assert sa == a.left.sigma or sa == a.right.sigma
+        for key, factor in factors.items():
+            assert sb[key] == pytest.approx(factor * sa[key], rel=1e-12), key
+    assert b.report()["left"]["sigma"]["roll_deg"] == pytest.approx(1.5 * a.left.sigma["roll_deg"], rel=1e-12)
+    # a focal length the user gave keeps its own sigma; the camera's gravity sigmas still widen
     a = plain.calibrate(left, right, focal_left=400.0)
     b = photo.calibrate(left, right, focal_left=400.0)
-    assert b.left.sigma["focal_px"] == a.left.sigma["focal_px"]
-    assert b.left.sigma["roll_deg"] == pytest.approx(1.5 * a.left.sigma["roll_deg"], rel=1e-12)
-    assert b.right.sigma["vfov_deg"] == pytest.approx(1.25 * a.right.sigma["vfov_deg"], rel=1e-12)
+    assert b.calibration.sigma_left["focal_px"] == a.calibration.sigma_left["focal_px"]
+    assert b.calibration.sigma_left["roll_deg"] == pytest.approx(1.5 * a.calibration.sigma_left["roll_deg"])
+    assert b.calibration.sigma_right["vfov_deg"] == pytest.approx(
+        1.25 * a.calibration.sigma_right["vfov_deg"]
+    )
