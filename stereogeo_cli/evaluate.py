@@ -75,7 +75,9 @@ def _baseline_pose(left, right, record, matcher: Callable) -> tuple[float, float
         return None
     lk, rk = record["left"], record["right"]
     undistorted = Matches(undistort_with_lens(m.left, lk), undistort_with_lens(m.right, rk))
-    pose = essential_pose(undistorted, np.asarray(lk["K"], dtype=float), np.asarray(rk["K"], dtype=float))
+    K_left, K_right = np.asarray(lk["K"], dtype=float), np.asarray(rk["K"], dtype=float)
+    # OpenCV's own pipeline (MAGSAC, recoverPose), as a user would run it
+    pose = essential_pose(undistorted, K_left, K_right, {"essential_second_opinion": False})
     if pose is None:
         return None
     R, t, _ = pose

@@ -31,6 +31,9 @@ default_conf = {
     "min_inliers": 15,  # fewer essential-matrix inliers than this: the pose head and gravity alone
     "ransac_threshold_px": 1.0,  # MAGSAC threshold on the epipolar error, pixels
     "ransac_confidence": 0.9999,
+    # where MAGSAC's essential matrix misses its own inliers, ask RANSAC too (essential_pose); off: OpenCV's
+    # plain findEssentialMat + recoverPose, as the evaluation's baselines are
+    "essential_second_opinion": True,
     "sampson_scale_px": 1.0,  # Huber scale of the Sampson error in the joint refinement, pixels
     "min_noise_px": 0.25,  # floor of the estimated match noise (keeps the data from swamping the priors)
     "iterations": 15,  # Gauss–Newton/LM steps of the joint refinement
@@ -160,7 +163,7 @@ def essential_pose(matches: Matches, K_left: np.ndarray, K_right: np.ndarray, co
         support = int(np.sum(errors < threshold_px))
         if best is None or support > best[0]:
             best = (support, R, t, inliers)
-        if np.median(errors[inliers]) <= 2.0 * threshold_px:
+        if not conf["essential_second_opinion"] or np.median(errors[inliers]) <= 2.0 * threshold_px:
             break  # the matrix fits its own inliers: no second opinion needed
     return None if best is None else best[1:]
 
