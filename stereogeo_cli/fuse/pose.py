@@ -134,8 +134,9 @@ def essential_pose(matches: Matches, K_left: np.ndarray, K_right: np.ndarray, co
     MAGSAC now and then returns an essential matrix that its own inliers do not fit (OpenCV 5 on one
     Middlebury pair: a median epipolar error of 6 px over inliers taken at 1 px). The median error of those
     inliers then becomes the fusion's noise scale, and a noise 20 times too large widens the pose's sigmas
-    as much. Where the inliers' median error is over twice the threshold, plain RANSAC is run too and the
-    matrix that more matches fit within the threshold is kept.
+    as much. Where the inliers' median error is over twice the threshold, or MAGSAC gives no pose, plain
+    RANSAC is run too and the matrix that more matches fit within the threshold is kept (conf
+    ``essential_second_opinion``; off, this is OpenCV's findEssentialMat + recoverPose and nothing else).
     """
     conf = {**default_conf, **(conf or {})}
     if len(matches) < 5:
@@ -144,7 +145,8 @@ def essential_pose(matches: Matches, K_left: np.ndarray, K_right: np.ndarray, co
     focal = 0.5 * (K_left[0, 0] + K_right[0, 0])
     threshold_px = conf["ransac_threshold_px"]
     best = None
-    for method in (cv2.USAC_MAGSAC, cv2.RANSAC):
+    methods = (cv2.USAC_MAGSAC, cv2.RANSAC) if conf["essential_second_opinion"] else (cv2.USAC_MAGSAC,)
+    for method in methods:
         E, mask = cv2.findEssentialMat(
             nl, nr, np.eye(3), method=method, prob=conf["ransac_confidence"], threshold=threshold_px / focal
         )
@@ -163,7 +165,7 @@ def essential_pose(matches: Matches, K_left: np.ndarray, K_right: np.ndarray, co
         support = int(np.sum(errors < threshold_px))
         if best is None or support > best[0]:
             best = (support, R, t, inliers)
-        if not conf["essential_second_opinion"] or np.median(errors[inliers]) <= 2.0 * threshold_px:
+        if np.median(errors[inliers]) <= 2.0 * threshold_px:
             break  # the matrix fits its own inliers: no second opinion needed
     return None if best is None else best[1:]
 
