@@ -33,6 +33,8 @@ from stereogeo_cli.network.runtime import DEPTH_STRIDE, FieldNetwork, ViewFields
 from stereogeo_cli.refine import CameraFit, combine_focal, parse_sigma_inflation, refine_camera
 from stereogeo_cli.refine.lines import default_conf as lines_conf
 from stereogeo_cli.refine.lines import detect_segments, gravity_with_lines
+from stereogeo_cli.refine.manhattan import default_conf as manhattan_conf
+from stereogeo_cli.refine.manhattan import detect_edges, manhattan_focal
 from stereogeo_cli.refine.plumb import PlumbLens, plumb_line_distortion
 from stereogeo_cli.refine.plumb import default_conf as plumb_conf
 
@@ -71,6 +73,10 @@ default_conf = {
     # overrides of stereogeo_cli.refine.plumb.default_conf: the lens read from the line segments' straight
     # edges, evidence in the fusion's test of whether to fit a lens (needs the line segments)
     "plumb": {},
+    # overrides of stereogeo_cli.refine.manhattan.default_conf: the focal length a Manhattan frame of the
+    # image's straight edges gives, combined with the fields' where the two agree (before the fusion;
+    # {"enabled": False}: the fields' alone)
+    "manhattan": {},
     "match": {},  # overrides of stereogeo_cli.fuse.matches.default_conf
     "fuse": {},  # overrides of stereogeo_cli.fuse.pose.default_conf
     # overrides of stereogeo_cli.fuse.scale.default_conf: the metric baseline from the matches and the depth
@@ -112,6 +118,12 @@ def _timed(function, *args):
 
 def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
+
+
+def _focal_from_fields(prior: dict | None, held: float | None) -> bool:
+    """Whether a camera's focal length is the network's read (alone, or combined with its straight edges')
+    rather than one the user or EXIF gave: its reported sigma is widened by photo_sigma_scale then."""
+    return held is None and (prior is None or prior["source"] == "lines")
 
 
 def hold_alike_focals(
@@ -179,6 +191,7 @@ class Calibrator:
         }
         self.conf["lines"] = {**lines_conf, **self.conf["lines"]}
         self.conf["plumb"] = {**plumb_conf, **self.conf["plumb"]}
+        self.conf["manhattan"] = {**manhattan_conf, **self.conf["manhattan"]}
         self.conf["fuse"] = {
             **{k: float(v) for k, v in measured.items() if v is not None},
             **self.conf["fuse"],
@@ -233,11 +246,7 @@ class Calibrator:
         if known_focal is not None or prior is None:
             return fit, None, None
         focal, sigma = combine_focal(fit.focal_px, fit.sigma["focal_px"], prior.focal_px, prior.sigma_px)
-        combined = self._refine_view(view, focal)
-        covariance = np.array(combined.covariance, dtype=float)
-        covariance[2, :] = covariance[:, 2] = 0.0
-        covariance[2, 2] = (sigma / focal) ** 2  # of log f
-        combined = combined.with_gravity(combined.gravity_up, covariance)
+        combined = self._held_at(view, focal, sigma)
         apart = abs(math.log(fit.focal_px / prior.focal_px))
         fields_sigma = fit.sigma["focal_px"] / fit.focal_px
         fields_sigma = fields_sigma if math.isfinite(fields_sigma) else 0.0
@@ -265,6 +274,92 @@ class Calibrator:
             "combined_focal_px": focal,  # the two combined, before the feature matches refine it
         }
         return combined, entry, warning
+
+    def _fuse(
+        self,
+        matches: Matches,
+        fit_left: CameraFit,
+        fit_right: CameraFit,
+        net,
+        held: list[float | None],
+        edge_lens: list[PlumbLens | None],
+    ) -> RelativePose:
+        """The relative pose from the matches, the two fits (K, gravity, their sigmas) and the pose head."""
+        K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
+        K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
+        gravity_sigma = math.radians(
+            math.sqrt(
+                sum(fit.sigma[k] ** 2 for fit in (fit_left, fit_right) for k in ("roll_deg", "pitch_deg"))
+            )
+        )
+        pose = fuse_relative_pose(
+            matches, K_left, K_right,
+            gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
+            gravity_sigma_rad=max(gravity_sigma, 1e-4) if math.isfinite(gravity_sigma) else None,
+            prior_R=net.rotation, prior_t=net.translation, conf=self.conf["fuse"],
+            focal_sigma_rel=(
+                None if held[0] is not None else fit_left.sigma["focal_px"] / fit_left.focal_px,
+                None if held[1] is not None else fit_right.sigma["focal_px"] / fit_right.focal_px,
+            ),
+            distortion_evidence=(
+                None if edge_lens[0] is None else edge_lens[0].division_k(fit_left.focal_px),
+                None if edge_lens[1] is None else edge_lens[1].division_k(fit_right.focal_px),
+            ),
+        )  # fmt: skip
+        if pose.source == "pose_head" and held == [None, None]:
+            pose = hold_alike_focals(pose, fit_left, fit_right, self.conf["equal_focal_fields_sigmas"])
+        return pose
+
+    def _held_at(self, view: ViewFields, focal: float, sigma: float) -> CameraFit:
+        """The fit of ``view`` whose focal length is held at a combined ``focal`` (original pixels) with that
+        1-sigma, the gravity fitted again for it."""
+        combined = self._refine_view(view, focal)
+        covariance = np.array(combined.covariance, dtype=float)
+        covariance[2, :] = covariance[:, 2] = 0.0
+        covariance[2, 2] = (sigma / focal) ** 2  # of log f
+        return combined.with_gravity(combined.gravity_up, covariance)
+
+    def _with_manhattan(
+        self, view: ViewFields, fit: CameraFit, edges: tuple[np.ndarray, float]
+    ) -> tuple[CameraFit, dict | None]:
+        """``fit`` with its focal length combined with the one a Manhattan frame of the image's straight
+        ``edges`` (pinhole segments, detector pixel size) gives, where the two agree within the conf's
+        ``gate_sigmas``: (fit, the report's entry or None).
+
+        The fields' sigma in the combination is the estimation's, as with an EXIF prior (the estimates do
+        not depend on photo_sigma_scale); the combined sigma is widened by photo_sigma_scale when reported,
+        as the fields' own is (refine/manhattan.py, docs/refine.md)."""
+        conf = self.conf["manhattan"]
+        segments, detector_px = edges
+        found = manhattan_focal(
+            segments,
+            (fit.width, fit.height),
+            fit.gravity_up,
+            fit.focal_px,
+            detector_px=detector_px,
+            conf=conf,
+        )
+        fields_sigma = fit.sigma["focal_px"] / fit.focal_px
+        if found is None or not (math.isfinite(fields_sigma) and fields_sigma > 0):
+            return fit, None
+        apart = abs(math.log(found.focal_px / fit.focal_px))
+        if apart > conf["gate_sigmas"] * math.hypot(fields_sigma, found.sigma_rel):
+            return fit, None
+        focal, sigma = combine_focal(
+            fit.focal_px, fields_sigma * fit.focal_px, found.focal_px, found.sigma_rel * found.focal_px
+        )
+        entry = {
+            "source": "lines",
+            "tag": None,
+            "tag_mm": None,
+            "focal_px": found.focal_px,
+            "sigma_px": found.sigma_rel * found.focal_px,
+            "fields_focal_px": fit.focal_px,
+            "fields_sigma_px": fields_sigma * fit.focal_px,
+            "combined_focal_px": focal,
+            "segments": list(found.families),  # along the frame's two horizontal directions and the vertical
+        }
+        return self._held_at(view, focal, sigma), entry
 
     def _with_lines(
         self,
@@ -375,8 +470,6 @@ class Calibrator:
             if not np.isfinite(fit.sigma["focal_px"]) and held == [None, None]:
                 raise CalibrationFailed(f"the {name} camera's focal length could not be determined")
 
-        K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
-        K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
         found_segments = None
         if self.conf["lines"]["enabled"]:
             # while the matching thread finishes (the fusion needs it); the segments' distortion is taken out
@@ -393,30 +486,37 @@ class Calibrator:
             for side, (segments, fit) in enumerate(zip(found_segments, (fit_left, fit_right), strict=True)):
                 edge_lens[side] = self._edge_lens(segments, fit)
             timing["lines"] += (time.perf_counter() - tick) * 1e3
+        # a focal length from neither the user nor EXIF: the fields' and the straight edges' combined (the
+        # edges found while the matching thread finishes; the lens the fusion measures taken out of them)
+        edges = [None, None]
+        if self.conf["manhattan"]["enabled"]:
+            tick = time.perf_counter()
+            edges = [
+                detect_edges(image, self.conf["manhattan"]["max_short_side"])
+                if held[side] is None and priors[side] is None
+                else None
+                for side, image in enumerate((left, right))
+            ]
+            timing["manhattan"] = (time.perf_counter() - tick) * 1e3
         matches, timing["matching"] = matching.result()
         tick = time.perf_counter()
-        gravity_sigma = math.radians(
-            math.sqrt(
-                sum(fit.sigma[k] ** 2 for fit in (fit_left, fit_right) for k in ("roll_deg", "pitch_deg"))
-            )
-        )
-        pose = fuse_relative_pose(
-            matches, K_left, K_right,
-            gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
-            gravity_sigma_rad=max(gravity_sigma, 1e-4) if math.isfinite(gravity_sigma) else None,
-            prior_R=net.rotation, prior_t=net.translation, conf=self.conf["fuse"],
-            focal_sigma_rel=(
-                None if held[0] is not None else fit_left.sigma["focal_px"] / fit_left.focal_px,
-                None if held[1] is not None else fit_right.sigma["focal_px"] / fit_right.focal_px,
-            ),
-            distortion_evidence=(
-                None if edge_lens[0] is None else edge_lens[0].division_k(fit_left.focal_px),
-                None if edge_lens[1] is None else edge_lens[1].division_k(fit_right.focal_px),
-            ),
-        )  # fmt: skip
-        if pose.source == "pose_head" and held == [None, None]:
-            pose = hold_alike_focals(pose, fit_left, fit_right, self.conf["equal_focal_fields_sigmas"])
+        pose = self._fuse(matches, fit_left, fit_right, net, held, edge_lens)
         timing["fusion"] = (time.perf_counter() - tick) * 1e3
+        if edges != [None, None]:
+            tick = time.perf_counter()
+            fits = [fit_left, fit_right]
+            for side, view in enumerate((net.left, net.right)):
+                # not through a lens the matches showed: one radial term leaves the edges bent enough to move
+                # their vanishing points (EuRoC's vFoV 2.11° → 3.51°, the chessboard set's 5.50° → 7.24°)
+                if edges[side] is not None and pose.distortion[side] == 0.0:
+                    fits[side], priors[side] = self._with_manhattan(view, fits[side], edges[side])
+            fit_left, fit_right = fits
+            timing["manhattan"] += (time.perf_counter() - tick) * 1e3
+            if any(prior is not None and prior["source"] == "lines" for prior in priors):
+                # the fusion again, with the combined focal lengths
+                tick = time.perf_counter()
+                pose = self._fuse(matches, fit_left, fit_right, net, held, edge_lens)
+                timing["fusion"] += (time.perf_counter() - tick) * 1e3
         warnings.extend(pose.notes)
         # the matches refine the focal lengths too (their ratio always; more where the cameras rotate)
         fit_left = fit_left.with_focal(fit_left.focal_px * pose.focal_scale[0])
@@ -486,8 +586,8 @@ class Calibrator:
             image_size_right=(fit_right.width, fit_right.height),
             R=pose.R, T=pose.translation(baseline), D_left=D_left, D_right=D_right,
             gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
-            sigma_left=self.reported_sigma(fit_left, priors[0] is None and held[0] is None),
-            sigma_right=self.reported_sigma(fit_right, priors[1] is None and held[1] is None),
+            sigma_left=self.reported_sigma(fit_left, _focal_from_fields(priors[0], held[0])),
+            sigma_right=self.reported_sigma(fit_right, _focal_from_fields(priors[1], held[1])),
             scale_source=scale_source, matches_found=pose.matches_found, matches_inliers=pose.inliers,
             timing_ms=timing, model_file=self.model_path.name, model_sha256=self.network.model_sha256,
             notes="; ".join(warnings),

@@ -1,0 +1,194 @@
+"""The focal length a man-made scene's straight edges give: a Manhattan frame fitted to the line segments.
+
+Walls, shelves, tables, windows and streets are built along three orthogonal directions, one of them
+vertical. A camera of focal length f sees each of them converge to a vanishing point ``K d``, and where two
+of those points are finite (a room's corner seen obliquely, a street going away) their positions fix f:
+orthogonal directions meet at points whose offsets from the principal point satisfy
+``(v1 - c)·(v2 - c) = -f²``. A camera looking square at a wall (one point at infinity) says little of f, and
+the fit's Hessian says so.
+
+The fit: parameters (log f, the up direction's two tangent angles around the fields' gravity, the frame's
+yaw about it); each segment belongs to the direction whose vanishing point it points at best, and its
+residual is the distance of its endpoint from the line through its midpoint and that point, in image
+pixels, under a Cauchy loss (segments along none of the three directions weigh little). Starts over a
+grid of focal lengths around the fields' and of yaws; the best start is refined by Levenberg–Marquardt.
+
+The 1-sigma of log f comes from the fit's Hessian, with every pixel of segment length one independent
+measurement. Neighbouring pixels of one edge are not independent, nor the edges of one object, so it is
+widened by ``sigma_scale`` and floored at ``sigma_floor``: both measured on held-out renders and
+real-panorama crops (docs/refine.md, "Vanishing points"). The pipeline combines it with the fields' focal
+length only where the two agree within ``gate_sigmas`` (the lines can lock onto a non-Manhattan pattern).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from stereogeo_cli.geometry.camera import principal_point
+from stereogeo_cli.geometry.gravity import retract_on_sphere, tangent_basis
+
+default_conf = {
+    "enabled": True,
+    # the detector runs on the image reduced to at most this short side (finer than the vertical lines'
+    # 256: the vanishing points need the edges' directions to a fraction of a degree)
+    "max_short_side": 640,
+    "min_length_rel": 0.03,  # shortest segment used, as a fraction of the image diagonal
+    "min_segments": 8,
+    "loss_scale_px": 1.0,  # Cauchy scale of the residuals, in detector pixels
+    "focal_starts": (0.6, 0.8, 1.0, 1.25, 1.6),  # starts, as multiples of the fields' focal length
+    "yaw_step_deg": 7.5,  # starts of the frame's yaw in [0°, 90°)
+    "iterations": 40,
+    # the Hessian's 1-sigma of log f, widened and floored (module docstring)
+    "sigma_scale": 3.0,
+    "sigma_floor": 0.08,
+    # combined with the fields' focal length only within this many combined sigmas of it (pipeline)
+    "gate_sigmas": 2.0,
+}
+
+_LOG_F_RANGE = (-5.0, 20.0)  # keeps exp(log f) finite where a fit runs away
+
+
+@dataclass(frozen=True)
+class ManhattanFocal:
+    """The focal length (pixels) a Manhattan frame of segments gives, its relative 1-sigma, and the number
+    of segments (within twice the loss scale) along each of its directions (horizontal, horizontal,
+    vertical)."""
+
+    focal_px: float
+    sigma_rel: float
+    families: tuple[int, int, int]
+
+
+def detect_edges(image_rgb: np.ndarray, max_short_side: int) -> tuple[np.ndarray, float]:
+    """Line segments [N x 4] (x1, y1, x2, y2, image pixels) and the detector's pixel size in image pixels."""
+    image = np.asarray(image_rgb)
+    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+    height, width = grey.shape[:2]
+    scale = min(1.0, max_short_side / min(width, height))
+    if scale < 1.0:
+        grey = cv2.resize(grey, (round(width * scale), round(height * scale)), interpolation=cv2.INTER_AREA)
+    found = cv2.createLineSegmentDetector().detect(grey)[0]
+    if found is None:
+        return np.zeros((0, 4)), 1.0 / scale
+    ends = found.reshape(-1, 2, 2).astype(float)
+    sx, sy = grey.shape[1] / width, grey.shape[0] / height
+    return ((ends + 0.5) / np.array([sx, sy]) - 0.5).reshape(-1, 4), 1.0 / scale
+
+
+class _Frame:
+    """Residuals of segments against the Manhattan frame of parameters x = (log f, δ1, δ2, yaw)."""
+
+    def __init__(self, segments: np.ndarray, centre: tuple[float, float], up: np.ndarray, loss_scale: float):
+        self.p1, self.p2 = segments[:, :2], segments[:, 2:]
+        self.length = np.linalg.norm(self.p2 - self.p1, axis=1)
+        ones = np.ones((len(segments), 1))
+        self.end = np.concatenate([self.p1, ones], axis=1)
+        self.mid = np.concatenate([0.5 * (self.p1 + self.p2), ones], axis=1)
+        self.centre = centre
+        self.up = np.asarray(up, dtype=float) / np.linalg.norm(up)
+        self.basis = tangent_basis(self.up)
+        self.scale = loss_scale
+
+    @staticmethod
+    def focal(x: np.ndarray) -> float:
+        return math.exp(min(max(float(x[0]), _LOG_F_RANGE[0]), _LOG_F_RANGE[1]))
+
+    def directions(self, x: np.ndarray) -> np.ndarray:
+        """The frame's three directions [3 x 3] (rows: horizontal, horizontal, up), camera coordinates."""
+        up = retract_on_sphere(self.up, np.asarray(x[1:3], dtype=float), self.basis)
+        e = tangent_basis(up)
+        a = math.cos(x[3]) * e[:, 0] + math.sin(x[3]) * e[:, 1]
+        return np.stack([a, np.cross(up, a), up])
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """[N x 3]: each segment's endpoint distance (pixels) from the line joining its midpoint to each of
+        the three vanishing points (homogeneous, so a point at infinity is a direction)."""
+        f, (cx, cy) = self.focal(x), self.centre
+        d = self.directions(x)
+        points = np.stack([f * d[:, 0] + cx * d[:, 2], f * d[:, 1] + cy * d[:, 2], d[:, 2]], axis=1)
+        out = np.empty((len(self.mid), 3))
+        for k in range(3):
+            line = np.cross(self.mid, points[k][None, :])
+            norm = np.maximum(np.linalg.norm(line[:, :2], axis=1), 1e-12)
+            out[:, k] = np.abs(np.sum(line * self.end, axis=1)) / norm
+        return out
+
+    def cost(self, x: np.ndarray) -> float:
+        r = self.residuals(x).min(axis=1)
+        return float(np.sum(self.length * np.log1p((r / self.scale) ** 2)))
+
+    def normal_equations(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(H, g, residuals, assignment) of the reweighted problem, each segment on its nearest direction."""
+        R = self.residuals(x)
+        k = np.argmin(R, axis=1)
+        rows = np.arange(len(k))
+        r = R[rows, k]
+        w = self.length / (1.0 + (r / self.scale) ** 2) / self.scale**2
+        J = np.empty((len(r), 4))
+        for j in range(4):
+            h = np.zeros(4)
+            h[j] = 1e-6
+            J[:, j] = (self.residuals(x + h)[rows, k] - self.residuals(x - h)[rows, k]) / 2e-6
+        return J.T @ (w[:, None] * J), J.T @ (w * r), r, k
+
+
+def manhattan_focal(
+    segments: np.ndarray,
+    image_size: tuple[int, int],
+    gravity_up: np.ndarray,
+    focal_px: float,
+    *,
+    detector_px: float = 1.0,
+    conf: dict | None = None,
+) -> ManhattanFocal | None:
+    """The focal length of a Manhattan frame fitted to ``segments`` [N x 4] (pinhole image pixels, the
+    principal point at the image centre), started from a camera's ``gravity_up`` and ``focal_px``; None
+    with too few segments or a fit that says nothing of f.
+
+    ``detector_px``: the size of the detector's pixel in image pixels (the loss scale is in the former).
+    """
+    conf = {**default_conf, **(conf or {})}
+    width, height = image_size
+    segments = np.asarray(segments, dtype=float).reshape(-1, 4)
+    length = np.linalg.norm(segments[:, 2:] - segments[:, :2], axis=1)
+    segments = segments[length > conf["min_length_rel"] * math.hypot(width, height)]
+    if len(segments) < conf["min_segments"] or not (np.isfinite(focal_px) and focal_px > 0):
+        return None
+    centre = principal_point(width, height)
+    frame = _Frame(segments, centre, gravity_up, conf["loss_scale_px"] * detector_px)
+    starts = [
+        np.array([math.log(focal_px * m), 0.0, 0.0, yaw])
+        for m in conf["focal_starts"]
+        for yaw in np.radians(np.arange(0.0, 90.0, conf["yaw_step_deg"]))
+    ]
+    x = min(starts, key=frame.cost)
+    cost, damping = frame.cost(x), 1e-3
+    for _ in range(conf["iterations"]):
+        H, g, _, _ = frame.normal_equations(x)
+        step = np.zeros(4)
+        while damping <= 1e6:
+            step = -np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-9), g)
+            trial = frame.cost(x + step)
+            if trial < cost:
+                x, cost, damping = x + step, trial, max(damping / 3.0, 1e-6)
+                break
+            damping *= 4.0
+        if damping > 1e6 or np.max(np.abs(step)) < 1e-7:
+            break
+    if not _LOG_F_RANGE[0] < x[0] < _LOG_F_RANGE[1]:
+        return None
+    H, _, r, k = frame.normal_equations(x)
+    try:
+        variance = float(np.linalg.inv(H)[0, 0])
+    except np.linalg.LinAlgError:
+        return None
+    if not (np.isfinite(variance) and variance >= 0):
+        return None
+    inlier = r < 2.0 * frame.scale
+    families = tuple(int(np.sum(inlier & (k == j))) for j in range(3))
+    sigma = max(conf["sigma_scale"] * math.sqrt(variance), conf["sigma_floor"])
+    return ManhattanFocal(frame.focal(x), sigma, families)  # type: ignore[arg-type]

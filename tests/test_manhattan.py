@@ -1,0 +1,100 @@
+"""The focal length from a Manhattan frame of line segments (stereogeo_cli/refine/manhattan.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stereogeo_cli.geometry import gravity_from_roll_pitch
+from stereogeo_cli.refine.manhattan import default_conf, manhattan_focal
+
+WIDTH, HEIGHT, FOCAL = 640, 480, 500.0
+
+
+def _frame(gravity: np.ndarray, yaw_deg: float) -> np.ndarray:
+    """Three orthogonal world directions in camera coordinates: two horizontal ones, ``yaw_deg`` from the
+    camera's horizontal forward direction, and up."""
+    up = gravity / np.linalg.norm(gravity)
+    forward = np.array([0.0, 0.0, 1.0]) - up[2] * up
+    forward /= np.linalg.norm(forward)
+    side = np.cross(up, forward)
+    yaw = math.radians(yaw_deg)
+    a = math.cos(yaw) * forward + math.sin(yaw) * side
+    return np.stack([a, np.cross(up, a), up])
+
+
+def _segments(directions, focal=FOCAL, count=300, noise_px=0.3, clutter=0.2, seed=0) -> np.ndarray:
+    """Projected 3-D segments along ``directions`` (and a share of random ones), endpoints with noise."""
+    rng = np.random.default_rng(seed)
+    K = np.array([[focal, 0, WIDTH / 2], [0, focal, HEIGHT / 2], [0, 0, 1.0]])
+    out = []
+    while len(out) < count:
+        start = rng.uniform([-4, -3, 3], [4, 3, 12])
+        if rng.random() < clutter:
+            along = rng.normal(size=3)
+            along /= np.linalg.norm(along)
+        else:
+            along = directions[rng.integers(3)]
+        end = start + along * rng.uniform(0.5, 2.5)
+        if end[2] < 0.5:
+            continue
+        p = (K @ np.stack([start, end]).T).T
+        p = p[:, :2] / p[:, 2:]
+        inside = np.all((p >= 0) & (p <= [WIDTH - 1, HEIGHT - 1]))
+        if inside and np.linalg.norm(p[1] - p[0]) > 0.05 * math.hypot(WIDTH, HEIGHT):
+            out.append((p + rng.normal(0, noise_px, p.shape)).ravel())
+    return np.array(out)
+
+
+def test_an_oblique_view_of_a_manhattan_scene_gives_the_focal_length():
+    gravity = gravity_from_roll_pitch(math.radians(4.0), math.radians(-12.0))
+    segments = _segments(_frame(gravity, 35.0))
+    # started 30 % off, with a gravity 2° off: the fit finds both
+    tilted = gravity_from_roll_pitch(math.radians(5.5), math.radians(-10.5))
+    found = manhattan_focal(segments, (WIDTH, HEIGHT), tilted, 1.3 * FOCAL)
+    assert found is not None
+    assert found.focal_px == pytest.approx(FOCAL, rel=0.02)
+    assert found.sigma_rel >= default_conf["sigma_floor"]
+    assert min(found.families) > 20  # every direction is seen
+
+
+def test_a_camera_square_to_the_walls_learns_nothing_of_the_focal_length():
+    # level and looking along one of the frame's directions: one vanishing point at the centre, two at
+    # infinity, whatever f is
+    gravity = gravity_from_roll_pitch(0.0, 0.0)
+    segments = _segments(_frame(gravity, 0.0), noise_px=0.3, clutter=0.0)
+    found = manhattan_focal(segments, (WIDTH, HEIGHT), gravity, FOCAL)
+    assert found is None or found.sigma_rel > 1.0
+
+
+def test_too_few_segments_give_nothing():
+    gravity = gravity_from_roll_pitch(0.0, math.radians(-10.0))
+    segments = _segments(_frame(gravity, 30.0), count=5)
+    assert manhattan_focal(segments, (WIDTH, HEIGHT), gravity, FOCAL) is None
+    assert manhattan_focal(np.zeros((0, 4)), (WIDTH, HEIGHT), gravity, FOCAL) is None
+
+
+def test_calibrate_combines_the_fields_focal_length_with_the_edges_one():
+    """On the bundled pair each camera's fields' focal length is combined with its edges' (the report says
+    so, with both reads); a focal length given by the user is not, and with the step off neither is."""
+    from pathlib import Path
+
+    from stereogeo_cli.io.images import load_image
+    from stereogeo_cli.pipeline import Calibrator
+
+    examples = Path(__file__).resolve().parent.parent / "examples"
+    left, right = load_image(examples / "left.png"), load_image(examples / "right.png")
+    calibrator = Calibrator(threads=2)
+    report = calibrator.calibrate(left, right).report()
+    for entry in report["focal_prior"]:
+        assert entry["source"] == "lines"
+        reads = sorted((entry["fields_focal_px"], entry["focal_px"]))
+        assert reads[0] <= entry["combined_focal_px"] <= reads[1]
+        assert entry["sigma_px"] > 0 and sum(entry["segments"]) > 0
+    given = calibrator.calibrate(left, right, focal_left=340.0).report()
+    assert given["focal_prior"][0] is None and given["focal_prior"][1]["source"] == "lines"
+    off = Calibrator(threads=2, conf={"manhattan": {"enabled": False}}).calibrate(left, right).report()
+    assert off["focal_prior"] == [None, None]
+    assert "manhattan" not in off["timing_ms"]
