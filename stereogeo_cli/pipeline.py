@@ -201,7 +201,9 @@ class Calibrator:
         depth_sigma = self.network.metadata.get("depth_sigma_scale_rel")
         self._depth_scale_sigma = float(depth_sigma) if depth_sigma is not None else None
         self.conf["scale"] = {**scale_conf, **self.conf["scale"]}
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-matching")
+        # the feature matching and the straight edges' detection need no network output: they run on
+        # other threads while ONNX Runtime runs (all three release the GIL)
+        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-matching")
 
     def reported_sigma(self, fit: CameraFit, focal_from_fields: bool = True) -> dict[str, float]:
         """The sigmas to report for a fit: every sigma of the estimation weighs one piece of evidence against
@@ -433,6 +435,12 @@ class Calibrator:
         # Feature matching needs no network output: it runs on a second thread while ONNX Runtime runs
         # (both release the GIL), so on two cores the two overlap.
         matching = self._pool.submit(_timed, match_features, left, right, self.conf["match"])
+        finding_edges = None
+        if self.conf["manhattan"]["enabled"]:
+            short = self.conf["manhattan"]["max_short_side"]
+            finding_edges = self._pool.submit(
+                _timed, lambda: [detect_edges(image, short) for image in (left, right)]
+            )
         tick = time.perf_counter()
         net = self.network.predict(left, right, flip=self.conf["flip"])
         timing["network"] = (time.perf_counter() - tick) * 1e3
@@ -489,15 +497,12 @@ class Calibrator:
         # a focal length from neither the user nor EXIF: the fields' and the straight edges' combined (the
         # edges found while the matching thread finishes; the lens the fusion measures taken out of them)
         edges = [None, None]
-        if self.conf["manhattan"]["enabled"]:
-            tick = time.perf_counter()
+        if finding_edges is not None:
+            found_edges, timing["manhattan"] = finding_edges.result()
             edges = [
-                detect_edges(image, self.conf["manhattan"]["max_short_side"])
-                if held[side] is None and priors[side] is None
-                else None
-                for side, image in enumerate((left, right))
+                e if held[side] is None and priors[side] is None else None
+                for side, e in enumerate(found_edges)
             ]
-            timing["manhattan"] = (time.perf_counter() - tick) * 1e3
         matches, timing["matching"] = matching.result()
         tick = time.perf_counter()
         pose = self._fuse(matches, fit_left, fit_right, net, held, edge_lens)
