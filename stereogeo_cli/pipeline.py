@@ -126,6 +126,12 @@ def _focal_from_fields(prior: dict | None, held: float | None) -> bool:
     return held is None and (prior is None or prior["source"] == "lines")
 
 
+def _no_lens(lens: PlumbLens | None) -> bool:
+    """Whether an image's straight edges are consistent with a pinhole camera (within 2 sigma of no lens, or
+    too few of them to tell)."""
+    return lens is None or abs(lens.kappa) <= 2.0 * lens.sigma_kappa
+
+
 def hold_alike_focals(
     pose: RelativePose, fit_left: CameraFit, fit_right: CameraFit, limit: float
 ) -> RelativePose:
@@ -511,9 +517,10 @@ class Calibrator:
             tick = time.perf_counter()
             fits = [fit_left, fit_right]
             for side, view in enumerate((net.left, net.right)):
-                # not through a lens the matches showed: one radial term leaves the edges bent enough to move
-                # their vanishing points (EuRoC's vFoV 2.11° → 3.51°, the chessboard set's 5.50° → 7.24°)
-                if edges[side] is not None and pose.distortion[side] == 0.0:
+                # not through a lens the matches or the edges themselves show: one radial term leaves the
+                # edges bent enough to move their vanishing points (EuRoC's vFoV 2.11° → 3.51°, the
+                # chessboard set's 5.50° → 7.24°; docs/refine.md)
+                if edges[side] is not None and pose.distortion[side] == 0.0 and _no_lens(edge_lens[side]):
                     fits[side], priors[side] = self._with_manhattan(view, fits[side], edges[side])
             fit_left, fit_right = fits
             timing["manhattan"] += (time.perf_counter() - tick) * 1e3

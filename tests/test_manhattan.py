@@ -98,3 +98,25 @@ def test_calibrate_combines_the_fields_focal_length_with_the_edges_one():
     off = Calibrator(threads=2, conf={"manhattan": {"enabled": False}}).calibrate(left, right).report()
     assert off["focal_prior"] == [None, None]
     assert "manhattan" not in off["timing_ms"]
+
+
+def test_calibrate_leaves_the_edges_out_where_they_show_a_lens(monkeypatch):
+    """Edges bent by a lens move their vanishing points: where the image's straight edges read a lens well
+    away from none, the fields' focal length stays as it is (and where they are consistent with none, the
+    edges are used)."""
+    from pathlib import Path
+
+    from stereogeo_cli.io.images import load_image
+    from stereogeo_cli.pipeline import Calibrator
+    from stereogeo_cli.refine.plumb import PlumbLens
+
+    examples = Path(__file__).resolve().parent.parent / "examples"
+    left, right = load_image(examples / "left.png"), load_image(examples / "right.png")
+    calibrator = Calibrator(threads=2)
+    for kappa, used in ((-2e-6, False), (-1e-8, True)):
+        lens = PlumbLens(kappa=kappa, sigma_kappa=1e-7, corner_radius_px=400.0, chains=12)
+        monkeypatch.setattr(Calibrator, "_edge_lens", lambda self, segments, fit, lens=lens: lens)
+        result = calibrator.calibrate(left, right)
+        assert list(result.pose.distortion) == [0.0, 0.0]  # the matches show no lens either way
+        for entry in result.report()["focal_prior"]:
+            assert (entry is not None and entry["source"] == "lines") == used
