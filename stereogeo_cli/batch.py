@@ -215,8 +215,9 @@ class RigEvidence:
     matches_left: np.ndarray
     matches_right: np.ndarray
     distortion: tuple[float, float] = (0.0, 0.0)  # division-model k per camera, for the refined focal
-    # per camera the EXIF prior (focal, sigma) in pixels that the pair's focal took in, or None; where there
-    # is one, ``focal`` and ``focal_sigma`` are the fields' own, so that --same-rig counts the prior once
+    # per camera the EXIF (or given) prior (focal, sigma) in pixels that the pair's focal took in, or None;
+    # where there is one, ``focal`` and ``focal_sigma`` are the fields' own, so that --same-rig counts the
+    # prior once (a focal length combined with the image's straight edges has none: pipeline._with_manhattan)
     focal_prior: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None)
 
 
@@ -259,7 +260,9 @@ def _evidence(result) -> RigEvidence:
     focal, sigma, prior = [], [], []
     for fit, entry in zip((result.left, result.right), priors, strict=True):
         fields_sigma = None if entry is None else entry.get("fields_sigma_px")
-        if entry is None or fields_sigma is None:
+        # a focal length combined with its straight edges' is the pair's own evidence, as the fields' alone is
+        # (each pair's edges are another scene's; an EXIF prior is one camera's tags, counted once)
+        if entry is None or fields_sigma is None or entry.get("source") == "lines":
             focal.append(fit.focal_px)
             sigma.append(fit.sigma["focal_px"])
             prior.append(None)

@@ -211,18 +211,34 @@ class Calibrator:
         # other threads while ONNX Runtime runs (all three release the GIL)
         self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-matching")
 
-    def reported_sigma(self, fit: CameraFit, focal_from_fields: bool = True) -> dict[str, float]:
+    def reported_sigma(
+        self, fit: CameraFit, focal_from_fields: bool = True, spread_rel: float = 0.0
+    ) -> dict[str, float]:
         """The sigmas to report for a fit: every sigma of the estimation weighs one piece of evidence against
         another; the ones reported are widened by the model's photo_sigma_scale, measured end to end on crops
         of real panoramas, so that they hold 68 % of the errors on photographs. The estimates do not change.
         A focal length that was given or had an EXIF prior keeps its sigma: that scale was not measured with
-        one."""
+        one. ``spread_rel``: a relative spread added in quadrature to the focal length's (two reads that
+        disagree: ``_lines_spread``)."""
         roll, pitch, vfov = self.photo_sigma_scale
         sigma = {**fit.sigma, "roll_deg": fit.sigma["roll_deg"] * roll}
         sigma["pitch_deg"] = fit.sigma["pitch_deg"] * pitch
         if focal_from_fields:
             sigma.update(focal_px=fit.sigma["focal_px"] * vfov, vfov_deg=fit.sigma["vfov_deg"] * vfov)
+        relative = sigma["focal_px"] / fit.focal_px
+        if spread_rel > 0 and math.isfinite(relative) and relative > 0:
+            widen = math.hypot(relative, spread_rel) / relative
+            sigma.update(focal_px=sigma["focal_px"] * widen, vfov_deg=sigma["vfov_deg"] * widen)
         return sigma
+
+    def _lines_spread(self, prior: dict | None) -> float:
+        """For a focal length combined with its straight edges': the conf's ``report_spread`` times the two
+        reads' distance in log f (0 otherwise). Where fields and edges disagree, the truth is uncertain by
+        about as much, whatever their sigmas say (docs/refine.md, "Vanishing points")."""
+        if prior is None or prior["source"] != "lines":
+            return 0.0
+        apart = abs(math.log(prior["focal_px"] / prior["fields_focal_px"]))
+        return self.conf["manhattan"]["report_spread"] * apart
 
     def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:
         """One camera's fit to its fields, in the original image's pixels."""
@@ -598,8 +614,12 @@ class Calibrator:
             image_size_right=(fit_right.width, fit_right.height),
             R=pose.R, T=pose.translation(baseline), D_left=D_left, D_right=D_right,
             gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
-            sigma_left=self.reported_sigma(fit_left, _focal_from_fields(priors[0], held[0])),
-            sigma_right=self.reported_sigma(fit_right, _focal_from_fields(priors[1], held[1])),
+            sigma_left=self.reported_sigma(
+                fit_left, _focal_from_fields(priors[0], held[0]), self._lines_spread(priors[0])
+            ),
+            sigma_right=self.reported_sigma(
+                fit_right, _focal_from_fields(priors[1], held[1]), self._lines_spread(priors[1])
+            ),
             scale_source=scale_source, matches_found=pose.matches_found, matches_inliers=pose.inliers,
             timing_ms=timing, model_file=self.model_path.name, model_sha256=self.network.model_sha256,
             notes="; ".join(warnings),

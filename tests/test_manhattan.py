@@ -120,3 +120,26 @@ def test_calibrate_leaves_the_edges_out_where_they_show_a_lens(monkeypatch):
         assert list(result.pose.distortion) == [0.0, 0.0]  # the matches show no lens either way
         for entry in result.report()["focal_prior"]:
             assert (entry is not None and entry["source"] == "lines") == used
+
+
+def test_the_reported_focal_sigma_takes_in_how_far_the_two_reads_are_apart():
+    """The estimate does not change; the reported focal sigma is the photo-widened combined one and half the
+    fields' and edges' distance in log f, in quadrature."""
+    from pathlib import Path
+
+    from stereogeo_cli.io.images import load_image
+    from stereogeo_cli.pipeline import Calibrator
+
+    examples = Path(__file__).resolve().parent.parent / "examples"
+    left, right = load_image(examples / "left.png"), load_image(examples / "right.png")
+    without = Calibrator(threads=2, conf={"manhattan": {"report_spread": 0.0}}).calibrate(left, right)
+    spread = Calibrator(threads=2).calibrate(left, right)
+    assert spread.left.focal_px == without.left.focal_px and spread.left.sigma == without.left.sigma
+    for side in ("left", "right"):
+        entry = spread.report()["focal_prior"][0 if side == "left" else 1]
+        apart = 0.5 * abs(math.log(entry["focal_px"] / entry["fields_focal_px"]))
+        plain = getattr(without.calibration, f"sigma_{side}")
+        widened = getattr(spread.calibration, f"sigma_{side}")
+        f = getattr(spread.calibration, f"K_{side}")[0, 0]
+        assert widened["focal_px"] / f == pytest.approx(math.hypot(plain["focal_px"] / f, apart), rel=1e-9)
+        assert widened["vfov_deg"] / plain["vfov_deg"] == pytest.approx(widened["focal_px"] / plain["focal_px"])

@@ -47,6 +47,9 @@ default_conf = {
     "sigma_floor": 0.08,
     # combined with the fields' focal length only within this many combined sigmas of it (pipeline)
     "gate_sigmas": 2.0,
+    # the reported focal sigma of a combination takes in this share of the two reads' distance in log f
+    # (pipeline.Calibrator._lines_spread; it widens only what is reported)
+    "report_spread": 0.5,
 }
 
 _LOG_F_RANGE = (-5.0, 20.0)  # keeps exp(log f) finite where a fit runs away
