@@ -326,11 +326,12 @@ def _init_worker(threads: int) -> None:
 
 
 def calibrator_conf(pinhole: bool, lines: bool = True) -> dict:
-    """The Calibrator settings of ``--pinhole`` (no lens distortion fitted) and ``--no-lines`` (gravity from
-    the fields alone)."""
+    """The Calibrator settings of ``--pinhole`` (no lens distortion fitted) and ``--no-lines`` (gravity and
+    focal length from the fields alone: neither vertical segments nor vanishing points)."""
     conf: dict = {"fuse": {"distortion": False}} if pinhole else {}
     if not lines:
         conf["lines"] = {"enabled": False}
+        conf["manhattan"] = {"enabled": False}
     return conf
 
 

@@ -237,8 +237,10 @@ LinesFlag = Annotated[
     bool,
     typer.Option(
         "--lines/--no-lines",
-        help="Fit each camera's gravity to the image's vertical line segments as well as to the network's "
-        "fields. --no-lines: the fields alone (for scenes whose straight edges are not vertical).",
+        help="Use the image's straight line segments as well as the network's fields: the vertical ones for "
+        "each camera's gravity, and the vanishing points of a Manhattan frame (two horizontal directions and "
+        "the vertical) for its focal length where no lens is seen. --no-lines: the fields alone (for scenes "
+        "whose straight edges are neither vertical nor square to each other).",
     ),
 ]  # calibrate and batch-calibrate
 

@@ -181,8 +181,9 @@ def test_a_learned_baseline_carries_the_models_sigma_and_a_given_one_none(pair, 
     assert given["pose"]["head_baseline_m"] == pytest.approx(learned["pose"]["head_baseline_m"], rel=1e-6)
 
 
-def test_no_lines_leaves_the_gravity_to_the_fields(pair, onnx_model):
-    """--no-lines: no segments used, and each camera's gravity is exactly what the fields alone give."""
+def test_no_lines_leaves_the_gravity_and_focal_length_to_the_fields(pair, onnx_model):
+    """--no-lines: no segments used (neither vertical ones nor vanishing points), and each camera's gravity
+    is exactly what the fields alone give."""
     from stereogeo_cli.pipeline import Calibrator
 
     runs = {
@@ -191,9 +192,11 @@ def test_no_lines_leaves_the_gravity_to_the_fields(pair, onnx_model):
     }
     assert all(run.exit_code == 0 for run in runs.values()), [run.output for run in runs.values()]
     with_lines, without = (json.loads(run.stdout) for run in runs.values())
-    assert without["vertical_segments"] == [0, 0]
+    assert without["vertical_segments"] == [0, 0] and without["focal_prior"] == [None, None]
     assert len(with_lines["vertical_segments"]) == 2 and min(with_lines["vertical_segments"]) >= 0
-    reference = Calibrator(onnx_model, conf={"lines": {"enabled": False}}).calibrate(*(rgb(p) for p in pair))
+    reference = Calibrator(
+        onnx_model, conf={"lines": {"enabled": False}, "manhattan": {"enabled": False}}
+    ).calibrate(*(rgb(p) for p in pair))
     for side, fit in (("left", reference.left), ("right", reference.right)):
         np.testing.assert_allclose(without[side]["gravity_up"], fit.gravity_up, atol=1e-9)
 

@@ -142,4 +142,6 @@ def test_the_reported_focal_sigma_takes_in_how_far_the_two_reads_are_apart():
         widened = getattr(spread.calibration, f"sigma_{side}")
         f = getattr(spread.calibration, f"K_{side}")[0, 0]
         assert widened["focal_px"] / f == pytest.approx(math.hypot(plain["focal_px"] / f, apart), rel=1e-9)
-        assert widened["vfov_deg"] / plain["vfov_deg"] == pytest.approx(widened["focal_px"] / plain["focal_px"])
+        assert widened["vfov_deg"] / plain["vfov_deg"] == pytest.approx(
+            widened["focal_px"] / plain["focal_px"]
+        )
