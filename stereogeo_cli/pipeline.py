@@ -126,10 +126,10 @@ def _focal_from_fields(prior: dict | None, held: float | None) -> bool:
     return held is None and (prior is None or prior["source"] == "lines")
 
 
-def _no_lens(lens: PlumbLens | None) -> bool:
-    """Whether an image's straight edges are consistent with a pinhole camera (within 2 sigma of no lens, or
-    too few of them to tell)."""
-    return lens is None or abs(lens.kappa) <= 2.0 * lens.sigma_kappa
+def _no_lens(lens: PlumbLens | None, sigmas: float) -> bool:
+    """Whether an image's straight edges are consistent with a pinhole camera (within ``sigmas`` sigma of no
+    lens, or too few of them to tell)."""
+    return lens is None or abs(lens.kappa) <= sigmas * lens.sigma_kappa
 
 
 def hold_alike_focals(
@@ -532,11 +532,16 @@ class Calibrator:
         if edges != [None, None]:
             tick = time.perf_counter()
             fits = [fit_left, fit_right]
+            lens_sigmas = self.conf["manhattan"]["lens_sigmas"]
             for side, view in enumerate((net.left, net.right)):
                 # not through a lens the matches or the edges themselves show: one radial term leaves the
                 # edges bent enough to move their vanishing points (EuRoC's vFoV 2.11° → 3.51°, the
                 # chessboard set's 5.50° → 7.24°; docs/refine.md)
-                if edges[side] is not None and pose.distortion[side] == 0.0 and _no_lens(edge_lens[side]):
+                if (
+                    edges[side] is not None
+                    and pose.distortion[side] == 0.0
+                    and _no_lens(edge_lens[side], lens_sigmas)
+                ):
                     fits[side], priors[side] = self._with_manhattan(view, fits[side], edges[side])
             fit_left, fit_right = fits
             timing["manhattan"] += (time.perf_counter() - tick) * 1e3

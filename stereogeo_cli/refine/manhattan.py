@@ -47,6 +47,9 @@ default_conf = {
     "sigma_floor": 0.08,
     # combined with the fields' focal length only within this many combined sigmas of it (pipeline)
     "gate_sigmas": 2.0,
+    # not used where the image's edges read a lens (refine/plumb.py) more than this many sigmas from none:
+    # the raw chessboard rig's views read 5.0–7.1, Middlebury's pinhole views at most 3.3 (pipeline)
+    "lens_sigmas": 4.0,
     # the reported focal sigma of a combination takes in this share of the two reads' distance in log f
     # (pipeline.Calibrator._lines_spread; it widens only what is reported)
     "report_spread": 0.5,
