@@ -8,6 +8,9 @@ pair: R and the translation direction) it prints how many of the pooled errors B
 than A, and the geometric mean of the ratios B / A (errors below a floor are raised to it, so that two
 tiny errors do not count as a large ratio), then each dataset's medians A → B.
 
+``--conf-a`` / ``--conf-b`` (JSON, ``Calibrator`` settings) compare two pipelines: the same model twice,
+one setting changed, e.g. ``--conf-a '{"manhattan": {"enabled": false}}'`` for the vanishing points.
+
 With ``--bootstrap N`` it also prints each error's median over all the datasets' pairs pooled, for A and B,
 with 95 % intervals from N resamplings of the pairs (both cameras of a pair stay together), and the paired
 difference B − A with its interval: how far a rendered set's median can be trusted (a 300-pair set's vFoV
@@ -15,6 +18,7 @@ median spans about ±0.7°).
 """
 
 import argparse
+import json
 from pathlib import Path
 
 import numpy as np
@@ -118,6 +122,8 @@ def main() -> None:
     parser.add_argument("model_b")
     parser.add_argument("datasets", nargs="+")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--conf-a", default="{}", help="Calibrator settings (JSON) for A")
+    parser.add_argument("--conf-b", default="{}", help="Calibrator settings (JSON) for B")
     parser.add_argument(
         "--bootstrap",
         type=int,
@@ -126,16 +132,20 @@ def main() -> None:
         help="pooled medians with 95 %% intervals (N resamplings)",
     )
     args = parser.parse_args()
+    try:
+        confs = [json.loads(args.conf_a), json.loads(args.conf_b)]
+    except json.JSONDecodeError as error:
+        parser.error(f"--conf-a / --conf-b: not JSON ({error})")
     results = []
-    for model in (args.model_a, args.model_b):
-        calibrator = Calibrator(model, threads=args.threads)
+    for model, conf in zip((args.model_a, args.model_b), confs, strict=True):
+        calibrator = Calibrator(model, threads=args.threads, conf=conf)
         results.append(
             {
                 Path(d).name: {row["id"]: row for row in evaluate_dataset(d, calibrator)["pairs"]}
                 for d in args.datasets
             }
         )
-    print(f"A = {args.model_a}, B = {args.model_b}\n")
+    print(f"A = {args.model_a} {args.conf_a}, B = {args.model_b} {args.conf_b}\n")
     print("\n".join(compare(*results)))
     if args.bootstrap:
         print()
