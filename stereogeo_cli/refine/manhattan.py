@@ -110,12 +110,16 @@ class _Frame:
         a = math.cos(x[3]) * e[:, 0] + math.sin(x[3]) * e[:, 1]
         return np.stack([a, np.cross(up, a), up])
 
+    def points(self, x: np.ndarray) -> np.ndarray:
+        """[3 x 3]: the frame's vanishing points K·d (rows, homogeneous image coordinates)."""
+        f, (cx, cy) = self.focal(x), self.centre
+        d = self.directions(x)
+        return np.stack([f * d[:, 0] + cx * d[:, 2], f * d[:, 1] + cy * d[:, 2], d[:, 2]], axis=1)
+
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """[N x 3]: each segment's endpoint distance (pixels) from the line joining its midpoint to each of
         the three vanishing points (homogeneous, so a point at infinity is a direction)."""
-        f, (cx, cy) = self.focal(x), self.centre
-        d = self.directions(x)
-        points = np.stack([f * d[:, 0] + cx * d[:, 2], f * d[:, 1] + cy * d[:, 2], d[:, 2]], axis=1)
+        points = self.points(x)
         out = np.empty((len(self.mid), 3))
         for k in range(3):
             line = np.cross(self.mid, points[k][None, :])
@@ -128,17 +132,31 @@ class _Frame:
         return float(np.sum(self.length * np.log1p((r / self.scale) ** 2)))
 
     def normal_equations(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(H, g, residuals, assignment) of the reweighted problem, each segment on its nearest direction."""
+        """(H, g, residuals, assignment) of the reweighted problem, each segment on its nearest direction.
+
+        The Jacobian chains each residual's gradient with respect to its vanishing point v with the
+        vanishing points' derivatives in the four parameters (central differences of three points). With
+        the line l = m × v and the endpoint p, r = |l·p| / |l₁₂|, so ∂r/∂v = sign(l·p)·(q × m) where
+        q = p / |l₁₂| − (l·p)·(l₁, l₂, 0) / |l₁₂|³."""
+        points = self.points(x)
         R = self.residuals(x)
         k = np.argmin(R, axis=1)
         rows = np.arange(len(k))
         r = R[rows, k]
         w = self.length / (1.0 + (r / self.scale) ** 2) / self.scale**2
-        J = np.empty((len(r), 4))
+        dpoints = np.empty((4, 3, 3))  # [parameter, direction, coordinate]
         for j in range(4):
             h = np.zeros(4)
             h[j] = 1e-6
-            J[:, j] = (self.residuals(x + h)[rows, k] - self.residuals(x - h)[rows, k]) / 2e-6
+            dpoints[j] = (self.points(x + h) - self.points(x - h)) / 2e-6
+        v = points[k]
+        line = np.cross(self.mid, v)
+        norm = np.maximum(np.linalg.norm(line[:, :2], axis=1), 1e-12)
+        signed = np.sum(line * self.end, axis=1)
+        q = self.end / norm[:, None]
+        q[:, :2] -= (signed / norm**3)[:, None] * line[:, :2]
+        grad = np.sign(signed)[:, None] * np.cross(q, self.mid)  # ∂r/∂v, [N x 3]
+        J = np.einsum("nc,jnc->nj", grad, dpoints[:, k, :])
         return J.T @ (w[:, None] * J), J.T @ (w * r), r, k
 
 
