@@ -33,8 +33,8 @@ from stereogeo_cli.network.runtime import DEPTH_STRIDE, FieldNetwork, ViewFields
 from stereogeo_cli.refine import CameraFit, combine_focal, parse_sigma_inflation, refine_camera
 from stereogeo_cli.refine.lines import default_conf as lines_conf
 from stereogeo_cli.refine.lines import detect_segments, gravity_with_lines
+from stereogeo_cli.refine.manhattan import ManhattanFocal, detect_edges, manhattan_focal
 from stereogeo_cli.refine.manhattan import default_conf as manhattan_conf
-from stereogeo_cli.refine.manhattan import detect_edges, manhattan_focal
 from stereogeo_cli.refine.plumb import PlumbLens, plumb_line_distortion
 from stereogeo_cli.refine.plumb import default_conf as plumb_conf
 
@@ -343,28 +343,42 @@ class Calibrator:
         covariance[2, 2] = (sigma / focal) ** 2  # of log f
         return combined.with_gravity(combined.gravity_up, covariance)
 
+    def _edge_focals(
+        self, finding_edges, fits: tuple[CameraFit, CameraFit], needed: list[bool]
+    ) -> tuple[list[ManhattanFocal | None], float]:
+        """Each camera's Manhattan-frame focal length from its straight edges (None where not ``needed`` or
+        none), started from its fields' fit, and the milliseconds spent finding and fitting the edges."""
+        edges, milliseconds = finding_edges.result()
+        tick = time.perf_counter()
+        conf = self.conf["manhattan"]
+        reads = [
+            manhattan_focal(
+                segments,
+                (fit.width, fit.height),
+                fit.gravity_up,
+                fit.focal_px,
+                detector_px=detector_px,
+                conf=conf,
+            )  # fmt: skip
+            if need
+            else None
+            for (segments, detector_px), fit, need in zip(edges, fits, needed, strict=True)
+        ]
+        return reads, milliseconds + (time.perf_counter() - tick) * 1e3
+
     def _with_manhattan(
-        self, view: ViewFields, fit: CameraFit, edges: tuple[np.ndarray, float]
+        self, view: ViewFields, fit: CameraFit, found: ManhattanFocal
     ) -> tuple[CameraFit, dict | None]:
-        """``fit`` with its focal length combined with the one a Manhattan frame of the image's straight
-        ``edges`` (pinhole segments, detector pixel size) gives, where the two agree within the conf's
-        ``gate_sigmas``: (fit, the report's entry or None).
+        """``fit`` with its focal length combined with ``found``, the one a Manhattan frame of the image's
+        straight edges gives, where the two agree within the conf's ``gate_sigmas``: (fit, the report's
+        entry or None).
 
         The fields' sigma in the combination is the estimation's, as with an EXIF prior (the estimates do
         not depend on photo_sigma_scale); the combined sigma is widened by photo_sigma_scale when reported,
         as the fields' own is (refine/manhattan.py, docs/refine.md)."""
         conf = self.conf["manhattan"]
-        segments, detector_px = edges
-        found = manhattan_focal(
-            segments,
-            (fit.width, fit.height),
-            fit.gravity_up,
-            fit.focal_px,
-            detector_px=detector_px,
-            conf=conf,
-        )
         fields_sigma = fit.sigma["focal_px"] / fit.focal_px
-        if found is None or not (math.isfinite(fields_sigma) and fields_sigma > 0):
+        if not (math.isfinite(fields_sigma) and fields_sigma > 0):
             return fit, None
         apart = abs(math.log(found.focal_px / fit.focal_px))
         if apart > conf["gate_sigmas"] * math.hypot(fields_sigma, found.sigma_rel):
@@ -499,6 +513,13 @@ class Calibrator:
         for name, fit in (("left", fit_left), ("right", fit_right)):
             if not np.isfinite(fit.sigma["focal_px"]) and held == [None, None]:
                 raise CalibrationFailed(f"the {name} camera's focal length could not be determined")
+        # a focal length from neither the user nor EXIF: the fields' and the straight edges' combined; the
+        # edges' Manhattan frames are fitted on the pool's thread while this one fits the vertical segments
+        # and the fusion runs (which decides whether the edges are used: not through a lens)
+        reading_edges = None
+        if finding_edges is not None:
+            needed = [held[side] is None and priors[side] is None for side in (0, 1)]
+            reading_edges = self._pool.submit(self._edge_focals, finding_edges, (fit_left, fit_right), needed)
 
         found_segments = None
         if self.conf["lines"]["enabled"]:
@@ -516,20 +537,12 @@ class Calibrator:
             for side, (segments, fit) in enumerate(zip(found_segments, (fit_left, fit_right), strict=True)):
                 edge_lens[side] = self._edge_lens(segments, fit)
             timing["lines"] += (time.perf_counter() - tick) * 1e3
-        # a focal length from neither the user nor EXIF: the fields' and the straight edges' combined (the
-        # edges found while the matching thread finishes; the lens the fusion measures taken out of them)
-        edges = [None, None]
-        if finding_edges is not None:
-            found_edges, timing["manhattan"] = finding_edges.result()
-            edges = [
-                e if held[side] is None and priors[side] is None else None
-                for side, e in enumerate(found_edges)
-            ]
         matches, timing["matching"] = matching.result()
         tick = time.perf_counter()
         pose = self._fuse(matches, fit_left, fit_right, net, held, edge_lens)
         timing["fusion"] = (time.perf_counter() - tick) * 1e3
-        if edges != [None, None]:
+        if reading_edges is not None:
+            reads, timing["manhattan"] = reading_edges.result()  # CPU time on the pool's thread
             tick = time.perf_counter()
             fits = [fit_left, fit_right]
             lens_sigmas = self.conf["manhattan"]["lens_sigmas"]
@@ -538,11 +551,11 @@ class Calibrator:
                 # edges bent enough to move their vanishing points (EuRoC's vFoV 2.11° → 3.51°, the
                 # chessboard set's 5.50° → 7.24°; docs/refine.md)
                 if (
-                    edges[side] is not None
+                    reads[side] is not None
                     and pose.distortion[side] == 0.0
                     and _no_lens(edge_lens[side], lens_sigmas)
                 ):
-                    fits[side], priors[side] = self._with_manhattan(view, fits[side], edges[side])
+                    fits[side], priors[side] = self._with_manhattan(view, fits[side], reads[side])
             fit_left, fit_right = fits
             timing["manhattan"] += (time.perf_counter() - tick) * 1e3
             if any(prior is not None and prior["source"] == "lines" for prior in priors):
