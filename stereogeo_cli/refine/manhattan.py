@@ -58,6 +58,11 @@ default_conf = {
 _LOG_F_RANGE = (-5.0, 20.0)  # keeps exp(log f) finite where a fit runs away
 
 
+def _cross(a, b) -> tuple[float, float, float]:
+    """a × b of two 3-vectors (plain floats: numpy's cross costs more than the product itself)."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
 @dataclass(frozen=True)
 class ManhattanFocal:
     """The focal length (pixels) a Manhattan frame of segments gives, its relative 1-sigma, and the number
@@ -86,14 +91,21 @@ def detect_edges(image_rgb: np.ndarray, max_short_side: int) -> tuple[np.ndarray
 
 
 class _Frame:
-    """Residuals of segments against the Manhattan frame of parameters x = (log f, δ1, δ2, yaw)."""
+    """Residuals of segments against the Manhattan frame of parameters x = (log f, δ1, δ2, yaw).
+
+    A segment's line through its midpoint m and a vanishing point v is l = m × v; its endpoint p lies
+    (l·p) / |l₁₂| pixels off it. l·p = v·(p × m), so the numerator is one product with a per-segment vector,
+    and l₁₂ = (m_y·v_z − v_y, v_x − m_x·v_z) (m is (m_x, m_y, 1)): all three points' residuals are a few
+    products of [N x 3] arrays.
+    """
 
     def __init__(self, segments: np.ndarray, centre: tuple[float, float], up: np.ndarray, loss_scale: float):
-        self.p1, self.p2 = segments[:, :2], segments[:, 2:]
-        self.length = np.linalg.norm(self.p2 - self.p1, axis=1)
+        p1, p2 = segments[:, :2], segments[:, 2:]
+        self.length = np.linalg.norm(p2 - p1, axis=1)
         ones = np.ones((len(segments), 1))
-        self.end = np.concatenate([self.p1, ones], axis=1)
-        self.mid = np.concatenate([0.5 * (self.p1 + self.p2), ones], axis=1)
+        end = np.concatenate([p1, ones], axis=1)
+        self.mid = 0.5 * (p1 + p2)
+        self.across = np.cross(end, np.concatenate([self.mid, ones], axis=1))  # p × m: l·p = v·(p × m)
         self.centre = centre
         self.up = np.asarray(up, dtype=float) / np.linalg.norm(up)
         self.basis = tangent_basis(self.up)
@@ -103,29 +115,40 @@ class _Frame:
     def focal(x: np.ndarray) -> float:
         return math.exp(min(max(float(x[0]), _LOG_F_RANGE[0]), _LOG_F_RANGE[1]))
 
-    def directions(self, x: np.ndarray) -> np.ndarray:
-        """The frame's three directions [3 x 3] (rows: horizontal, horizontal, up), camera coordinates."""
+    def directions(self, x: np.ndarray, yaw_derivative: bool = False) -> np.ndarray:
+        """The frame's three directions [3 x 3] (rows: horizontal, horizontal, up), camera coordinates; with
+        ``yaw_derivative``, their derivatives in the yaw instead."""
         up = retract_on_sphere(self.up, np.asarray(x[1:3], dtype=float), self.basis)
         e = tangent_basis(up)
-        a = math.cos(x[3]) * e[:, 0] + math.sin(x[3]) * e[:, 1]
-        return np.stack([a, np.cross(up, a), up])
+        c, s = math.cos(x[3]), math.sin(x[3])
+        if yaw_derivative:
+            c, s = -s, c
+            a = c * e[:, 0] + s * e[:, 1]
+            return np.array([a, _cross(up, a), (0.0, 0.0, 0.0)])
+        a = c * e[:, 0] + s * e[:, 1]
+        return np.array([a, _cross(up, a), up])
 
-    def points(self, x: np.ndarray) -> np.ndarray:
-        """[3 x 3]: the frame's vanishing points K·d (rows, homogeneous image coordinates)."""
+    def points(self, x: np.ndarray, d: np.ndarray | None = None, focal_only: bool = False) -> np.ndarray:
+        """[3 x 3]: the frame's vanishing points K·d (rows, homogeneous image coordinates), of the directions
+        ``d`` (default: the frame's); ``focal_only``: K's focal part alone (f·d_x, f·d_y, 0)."""
         f, (cx, cy) = self.focal(x), self.centre
-        d = self.directions(x)
+        d = self.directions(x) if d is None else d
+        if focal_only:
+            return np.stack([f * d[:, 0], f * d[:, 1], np.zeros(3)], axis=1)
         return np.stack([f * d[:, 0] + cx * d[:, 2], f * d[:, 1] + cy * d[:, 2], d[:, 2]], axis=1)
+
+    def _parts(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(l·p, l₁, l₂), each [N x 3]: per segment, against each vanishing point (rows of ``points``)."""
+        signed = self.across @ points.T
+        l1 = self.mid[:, 1:2] * points[:, 2] - points[:, 1]
+        l2 = points[:, 0] - self.mid[:, 0:1] * points[:, 2]
+        return signed, l1, l2
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """[N x 3]: each segment's endpoint distance (pixels) from the line joining its midpoint to each of
         the three vanishing points (homogeneous, so a point at infinity is a direction)."""
-        points = self.points(x)
-        out = np.empty((len(self.mid), 3))
-        for k in range(3):
-            line = np.cross(self.mid, points[k][None, :])
-            norm = np.maximum(np.linalg.norm(line[:, :2], axis=1), 1e-12)
-            out[:, k] = np.abs(np.sum(line * self.end, axis=1)) / norm
-        return out
+        signed, l1, l2 = self._parts(self.points(x))
+        return np.abs(signed) / np.maximum(np.hypot(l1, l2), 1e-12)
 
     def cost(self, x: np.ndarray) -> float:
         r = self.residuals(x).min(axis=1)
@@ -134,28 +157,29 @@ class _Frame:
     def normal_equations(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(H, g, residuals, assignment) of the reweighted problem, each segment on its nearest direction.
 
-        The Jacobian chains each residual's gradient with respect to its vanishing point v with the
-        vanishing points' derivatives in the four parameters (central differences of three points). With
-        the line l = m × v and the endpoint p, r = |l·p| / |l₁₂|, so ∂r/∂v = sign(l·p)·(q × m) where
-        q = p / |l₁₂| − (l·p)·(l₁, l₂, 0) / |l₁₂|³."""
+        The Jacobian chains each residual's gradient with respect to its vanishing point v,
+        ∂r/∂v = sign(l·p)·(p × m)/n − |l·p|·(l₁·(0, −1, m_y) + l₂·(1, 0, −m_x))/n³ with n = |l₁₂|, with the
+        vanishing points' derivatives in the four parameters (central differences of three points)."""
         points = self.points(x)
-        R = self.residuals(x)
+        signed, l1, l2 = self._parts(points)
+        norm = np.maximum(np.hypot(l1, l2), 1e-12)
+        R = np.abs(signed) / norm
         k = np.argmin(R, axis=1)
         rows = np.arange(len(k))
-        r = R[rows, k]
+        r, s, a, b, n = R[rows, k], signed[rows, k], l1[rows, k], l2[rows, k], norm[rows, k]
         w = self.length / (1.0 + (r / self.scale) ** 2) / self.scale**2
         dpoints = np.empty((4, 3, 3))  # [parameter, direction, coordinate]
-        for j in range(4):
+        dpoints[0] = self.points(x, focal_only=True)  # ∂/∂ log f
+        for j in (1, 2):  # the up direction's tangent angles: central differences
             h = np.zeros(4)
             h[j] = 1e-6
             dpoints[j] = (self.points(x + h) - self.points(x - h)) / 2e-6
-        v = points[k]
-        line = np.cross(self.mid, v)
-        norm = np.maximum(np.linalg.norm(line[:, :2], axis=1), 1e-12)
-        signed = np.sum(line * self.end, axis=1)
-        q = self.end / norm[:, None]
-        q[:, :2] -= (signed / norm**3)[:, None] * line[:, :2]
-        grad = np.sign(signed)[:, None] * np.cross(q, self.mid)  # ∂r/∂v, [N x 3]
+        dpoints[3] = self.points(x, self.directions(x, yaw_derivative=True))  # K is linear in d
+        t = np.abs(s) / n**3
+        grad = (np.sign(s) / n)[:, None] * self.across  # ∂r/∂v, [N x 3]
+        grad[:, 0] -= t * b
+        grad[:, 1] += t * a
+        grad[:, 2] -= t * (a * self.mid[:, 1] - b * self.mid[:, 0])
         J = np.einsum("nc,jnc->nj", grad, dpoints[:, k, :])
         return J.T @ (w[:, None] * J), J.T @ (w * r), r, k
 
