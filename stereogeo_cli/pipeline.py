@@ -74,8 +74,8 @@ default_conf = {
     # edges, evidence in the fusion's test of whether to fit a lens (needs the line segments)
     "plumb": {},
     # overrides of stereogeo_cli.refine.manhattan.default_conf: the focal length a Manhattan frame of the
-    # image's straight edges gives, combined with the fields' where the two agree (before the fusion;
-    # {"enabled": False}: the fields' alone)
+    # image's straight edges gives, combined with the fields' where the two agree and no lens is seen (after
+    # the fusion, which then runs again; {"enabled": False}: the fields' alone)
     "manhattan": {},
     "match": {},  # overrides of stereogeo_cli.fuse.matches.default_conf
     "fuse": {},  # overrides of stereogeo_cli.fuse.pose.default_conf

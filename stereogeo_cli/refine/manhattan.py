@@ -219,7 +219,11 @@ def manhattan_focal(
         H, g, _, _ = frame.normal_equations(x)
         step = np.zeros(4)
         while damping <= 1e6:
-            step = -np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-9), g)
+            try:
+                step = -np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-9), g)
+            except np.linalg.LinAlgError:  # a degenerate frame: stop where it is
+                damping = math.inf
+                break
             trial = frame.cost(x + step)
             if trial < cost:
                 x, cost, damping = x + step, trial, max(damping / 3.0, 1e-6)
