@@ -131,14 +131,15 @@ def test_calibrate_gives_gravities_that_agree_with_its_rotation(example_pair, on
 
 
 def test_fields_only_is_what_calibrate_starts_from(example_pair, onnx_model):
-    """Calibrator.fields_only (the network alone) gives the cameras calibrate starts from: without sharing
-    and vertical lines, calibrate keeps their gravity and only rescales their focal lengths by the matches'
-    ratio."""
+    """Calibrator.fields_only (the network alone) gives the cameras calibrate starts from: without sharing,
+    vertical lines and vanishing points, calibrate keeps their gravity and only rescales their focal lengths
+    by the matches' ratio."""
     from stereogeo_cli.io import load_image
     from stereogeo_cli.pipeline import Calibrator
 
     images = [load_image(path) for path in example_pair]
-    calibrator = Calibrator(onnx_model, conf={"share_gravity": False, "lines": {"enabled": False}})
+    conf = {"share_gravity": False, "lines": {"enabled": False}, "manhattan": {"enabled": False}}
+    calibrator = Calibrator(onnx_model, conf=conf)
     result = calibrator.calibrate(*images)
     for own, calibrated, scale in zip(calibrator.fields_only(*images), (result.left, result.right),
                                       result.pose.focal_scale, strict=True):  # fmt: skip
