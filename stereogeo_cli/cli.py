@@ -194,6 +194,11 @@ def _print_summary(result, console) -> None:
                 f"{side} focal: EXIF {prior['tag_mm']:g} {unit} = {prior['focal_px']:.0f} px, with the "
                 f"fields' {prior['fields_focal_px']:.0f} px"
             )
+        elif prior and prior["source"] == "lines":
+            console.print(
+                f"{side} focal: the fields' {prior['fields_focal_px']:.0f} px with the vanishing points' "
+                f"{prior['focal_px']:.0f} ± {prior['sigma_px']:.0f} px"
+            )
         elif prior:
             console.print(
                 f"{side} focal: given {prior['focal_px']:.0f} ± {prior['sigma_px']:.0f} px, with the fields' "

@@ -341,3 +341,18 @@ def test_focal_sigma_makes_given_focal_lengths_priors(pair, onnx_model):
     for value in ("0", "1.5", "-0.1"):
         assert_error(invoke(*args, "--focal-sigma", value), 2, "--focal-sigma")
     assert_error(invoke("calibrate", *pair, "--model", onnx_model, "--focal-sigma", "0.1"), 2, "--focal-left")
+
+
+def test_the_summary_names_where_each_focal_length_came_from(example_pair, onnx_model):
+    """The human summary: a focal length combined with the vanishing points says so (not "given"), and one the
+    user gave with a sigma says "given"."""
+    left, right = example_pair
+    result = invoke("calibrate", left, right, "--model", onnx_model)
+    assert result.exit_code == 0, result.output
+    lines = [line for line in result.stdout.splitlines() if " focal: " in line]
+    assert len(lines) == 2 and all("with the vanishing points'" in line for line in lines), lines
+    given = invoke(
+        "calibrate", left, right, "--model", onnx_model, "--focal-left", 340, "--focal-sigma", 0.05
+    )
+    assert given.exit_code == 0, given.output
+    assert any(line.startswith("left focal: given 340") for line in given.stdout.splitlines()), given.stdout
