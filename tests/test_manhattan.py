@@ -145,3 +145,22 @@ def test_the_reported_focal_sigma_takes_in_how_far_the_two_reads_are_apart():
         assert widened["vfov_deg"] / plain["vfov_deg"] == pytest.approx(
             widened["focal_px"] / plain["focal_px"]
         )
+
+
+def test_same_rig_counts_an_edge_combined_focal_length_as_the_pairs_own_evidence():
+    """batch-calibrate --same-rig: a focal length combined with the vanishing points is the pair's evidence
+    (its calibrated value and sigma), not a prior shared by every pair, as an EXIF tag is."""
+    from pathlib import Path
+
+    from stereogeo_cli.batch import _evidence
+    from stereogeo_cli.io.images import load_image
+    from stereogeo_cli.pipeline import Calibrator
+
+    examples = Path(__file__).resolve().parent.parent / "examples"
+    left, right = load_image(examples / "left.png"), load_image(examples / "right.png")
+    result = Calibrator(threads=2).calibrate(left, right)
+    assert all(entry["source"] == "lines" for entry in result.report()["focal_prior"])
+    evidence = _evidence(result)
+    assert evidence.focal_prior == (None, None)
+    assert evidence.focal == (result.left.focal_px, result.right.focal_px)
+    assert evidence.focal_sigma == (result.left.sigma["focal_px"], result.right.sigma["focal_px"])
