@@ -32,8 +32,8 @@ from stereogeo_cli.io.images import check_pair
 from stereogeo_cli.network.runtime import DEPTH_STRIDE, FieldNetwork, ViewFields
 from stereogeo_cli.refine import CameraFit, combine_focal, parse_sigma_inflation, refine_camera
 from stereogeo_cli.refine.lines import default_conf as lines_conf
-from stereogeo_cli.refine.lines import detect_segments, gravity_with_lines
-from stereogeo_cli.refine.manhattan import ManhattanFocal, detect_edges, manhattan_focal
+from stereogeo_cli.refine.lines import detect_segments, detector_pixel, gravity_with_lines
+from stereogeo_cli.refine.manhattan import ManhattanFocal, manhattan_focal
 from stereogeo_cli.refine.manhattan import default_conf as manhattan_conf
 from stereogeo_cli.refine.plumb import PlumbLens, plumb_line_distortion
 from stereogeo_cli.refine.plumb import default_conf as plumb_conf
@@ -209,7 +209,7 @@ class Calibrator:
         self.conf["scale"] = {**scale_conf, **self.conf["scale"]}
         # the feature matching and the straight edges' detection need no network output: they run on
         # other threads while ONNX Runtime runs (all three release the GIL)
-        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-matching")
+        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-pool")
 
     def reported_sigma(
         self, fit: CameraFit, focal_from_fields: bool = True, spread_rel: float = 0.0
@@ -357,12 +357,12 @@ class Calibrator:
                 (fit.width, fit.height),
                 fit.gravity_up,
                 fit.focal_px,
-                detector_px=detector_px,
+                detector_px=detector_pixel(fit.width, fit.height, conf["max_short_side"]),
                 conf=conf,
             )  # fmt: skip
             if need
             else None
-            for (segments, detector_px), fit, need in zip(edges, fits, needed, strict=True)
+            for segments, fit, need in zip(edges, fits, needed, strict=True)
         ]
         return reads, milliseconds + (time.perf_counter() - tick) * 1e3
 
@@ -430,7 +430,7 @@ class Calibrator:
     def _edge_lens(self, segments: np.ndarray, fit: CameraFit) -> PlumbLens | None:
         """The lens the image's straight edges show (None: too few of them, or they disagree)."""
         width, height = fit.width, fit.height
-        scale = max(1.0, min(width, height) / self.conf["lines"]["max_short_side"])  # detector → image px
+        scale = detector_pixel(width, height, self.conf["lines"]["max_short_side"])
         centre = principal_point(width, height)
         return plumb_line_distortion(
             segments, (width, height), centre, detector_scale=scale, conf=self.conf["plumb"]
@@ -475,7 +475,7 @@ class Calibrator:
         if self.conf["manhattan"]["enabled"]:
             short = self.conf["manhattan"]["max_short_side"]
             finding_edges = self._pool.submit(
-                _timed, lambda: [detect_edges(image, short) for image in (left, right)]
+                _timed, lambda: [detect_segments(image, short) for image in (left, right)]
             )
         tick = time.perf_counter()
         net = self.network.predict(left, right, flip=self.conf["flip"])

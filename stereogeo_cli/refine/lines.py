@@ -83,6 +83,11 @@ def detect_segments(
     return ((ends + 0.5) / np.array([sx, sy]) - 0.5).reshape(-1, 4)  # detector pixels → image pixels
 
 
+def detector_pixel(width: int, height: int, max_short_side: int) -> float:
+    """The size, in image pixels, of a pixel of the image ``detect_segments`` runs the detector on."""
+    return max(1.0, min(width, height) / max_short_side)
+
+
 def vertical_segments(
     segments: np.ndarray,
     reference_up: Callable[[np.ndarray, np.ndarray], np.ndarray],

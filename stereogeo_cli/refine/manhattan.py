@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from stereogeo_cli.geometry.camera import principal_point
@@ -33,8 +32,8 @@ from stereogeo_cli.geometry.gravity import retract_on_sphere, tangent_basis
 
 default_conf = {
     "enabled": True,
-    # the detector runs on the image reduced to at most this short side (finer than the vertical lines'
-    # 256: the vanishing points need the edges' directions to a fraction of a degree)
+    # refine.lines.detect_segments runs on the image reduced to at most this short side (finer than the
+    # vertical lines' 256: the vanishing points need the edges' directions to a fraction of a degree)
     "max_short_side": 640,
     "min_length_rel": 0.03,  # shortest segment used, as a fraction of the image diagonal
     "min_segments": 8,
@@ -72,22 +71,6 @@ class ManhattanFocal:
     focal_px: float
     sigma_rel: float
     families: tuple[int, int, int]
-
-
-def detect_edges(image_rgb: np.ndarray, max_short_side: int) -> tuple[np.ndarray, float]:
-    """Line segments [N x 4] (x1, y1, x2, y2, image pixels) and the detector's pixel size in image pixels."""
-    image = np.asarray(image_rgb)
-    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
-    height, width = grey.shape[:2]
-    scale = min(1.0, max_short_side / min(width, height))
-    if scale < 1.0:
-        grey = cv2.resize(grey, (round(width * scale), round(height * scale)), interpolation=cv2.INTER_AREA)
-    found = cv2.createLineSegmentDetector().detect(grey)[0]
-    if found is None:
-        return np.zeros((0, 4)), 1.0 / scale
-    ends = found.reshape(-1, 2, 2).astype(float)
-    sx, sy = grey.shape[1] / width, grey.shape[0] / height
-    return ((ends + 0.5) / np.array([sx, sy]) - 0.5).reshape(-1, 4), 1.0 / scale
 
 
 class _Frame:
