@@ -7,10 +7,20 @@ import math
 import numpy as np
 import pytest
 
+from stereogeo_cli.batch import _evidence
 from stereogeo_cli.geometry import gravity_from_roll_pitch
+from stereogeo_cli.io.images import load_image
+from stereogeo_cli.pipeline import Calibrator
 from stereogeo_cli.refine.manhattan import default_conf, manhattan_focal
+from stereogeo_cli.refine.plumb import PlumbLens
 
 WIDTH, HEIGHT, FOCAL = 640, 480, 500.0
+
+
+@pytest.fixture(scope="module")
+def bundled(example_pair) -> tuple[np.ndarray, np.ndarray]:
+    """The bundled pair's images (a rendered room: straight edges along a Manhattan frame)."""
+    return tuple(load_image(path) for path in example_pair)
 
 
 def _frame(gravity: np.ndarray, yaw_deg: float) -> np.ndarray:
@@ -76,16 +86,10 @@ def test_too_few_segments_give_nothing():
     assert manhattan_focal(np.zeros((0, 4)), (WIDTH, HEIGHT), gravity, FOCAL) is None
 
 
-def test_calibrate_combines_the_fields_focal_length_with_the_edges_one():
+def test_calibrate_combines_the_fields_focal_length_with_the_edges_one(bundled):
     """On the bundled pair each camera's fields' focal length is combined with its edges' (the report says
     so, with both reads); a focal length given by the user is not, and with the step off neither is."""
-    from pathlib import Path
-
-    from stereogeo_cli.io.images import load_image
-    from stereogeo_cli.pipeline import Calibrator
-
-    examples = Path(__file__).resolve().parent.parent / "examples"
-    left, right = load_image(examples / "left.png"), load_image(examples / "right.png")
+    left, right = bundled
     calibrator = Calibrator(threads=2)
     report = calibrator.calibrate(left, right).report()
     for entry in report["focal_prior"]:
@@ -100,18 +104,11 @@ def test_calibrate_combines_the_fields_focal_length_with_the_edges_one():
     assert "manhattan" not in off["timing_ms"]
 
 
-def test_calibrate_leaves_the_edges_out_where_they_show_a_lens(monkeypatch):
+def test_calibrate_leaves_the_edges_out_where_they_show_a_lens(bundled, monkeypatch):
     """Edges bent by a lens move their vanishing points: where the image's straight edges read a lens well
     away from none, the fields' focal length stays as it is (and where they are consistent with none, the
     edges are used)."""
-    from pathlib import Path
-
-    from stereogeo_cli.io.images import load_image
-    from stereogeo_cli.pipeline import Calibrator
-    from stereogeo_cli.refine.plumb import PlumbLens
-
-    examples = Path(__file__).resolve().parent.parent / "examples"
-    left, right = load_image(examples / "left.png"), load_image(examples / "right.png")
+    left, right = bundled
     calibrator = Calibrator(threads=2)
     for kappa, used in ((-2e-6, False), (-1e-8, True)):
         lens = PlumbLens(kappa=kappa, sigma_kappa=1e-7, corner_radius_px=400.0, chains=12)
@@ -122,16 +119,10 @@ def test_calibrate_leaves_the_edges_out_where_they_show_a_lens(monkeypatch):
             assert (entry is not None and entry["source"] == "lines") == used
 
 
-def test_the_reported_focal_sigma_takes_in_how_far_the_two_reads_are_apart():
+def test_the_reported_focal_sigma_takes_in_how_far_the_two_reads_are_apart(bundled):
     """The estimate does not change; the reported focal sigma is the photo-widened combined one and half the
     fields' and edges' distance in log f, in quadrature."""
-    from pathlib import Path
-
-    from stereogeo_cli.io.images import load_image
-    from stereogeo_cli.pipeline import Calibrator
-
-    examples = Path(__file__).resolve().parent.parent / "examples"
-    left, right = load_image(examples / "left.png"), load_image(examples / "right.png")
+    left, right = bundled
     without = Calibrator(threads=2, conf={"manhattan": {"report_spread": 0.0}}).calibrate(left, right)
     spread = Calibrator(threads=2).calibrate(left, right)
     assert spread.left.focal_px == without.left.focal_px and spread.left.sigma == without.left.sigma
@@ -147,17 +138,10 @@ def test_the_reported_focal_sigma_takes_in_how_far_the_two_reads_are_apart():
         )
 
 
-def test_same_rig_counts_an_edge_combined_focal_length_as_the_pairs_own_evidence():
+def test_same_rig_counts_an_edge_combined_focal_length_as_the_pairs_own_evidence(bundled):
     """batch-calibrate --same-rig: a focal length combined with the vanishing points is the pair's evidence
     (its calibrated value and sigma), not a prior shared by every pair, as an EXIF tag is."""
-    from pathlib import Path
-
-    from stereogeo_cli.batch import _evidence
-    from stereogeo_cli.io.images import load_image
-    from stereogeo_cli.pipeline import Calibrator
-
-    examples = Path(__file__).resolve().parent.parent / "examples"
-    left, right = load_image(examples / "left.png"), load_image(examples / "right.png")
+    left, right = bundled
     result = Calibrator(threads=2).calibrate(left, right)
     assert all(entry["source"] == "lines" for entry in result.report()["focal_prior"])
     evidence = _evidence(result)
