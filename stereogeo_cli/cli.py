@@ -9,11 +9,35 @@ from typing import Annotated
 
 import numpy as np
 import typer
+import typer.core
 
 from stereogeo_cli import __version__
 from stereogeo_cli.errors import EXIT_INTERNAL, EXIT_PARTIAL_BATCH, StereoGeoError
 
-app = typer.Typer(
+
+class _Command(typer.core.TyperCommand):
+    """Help as a user reads it: flags without a type placeholder, arguments in the usage line as LEFT."""
+
+    def get_params(self, ctx):
+        params = super().get_params(ctx)
+        for param in params:
+            if getattr(param, "is_flag", False) and param.metavar is None:
+                param.metavar = ""  # a flag takes no value: no "<bool>"
+        return params
+
+    def collect_usage_pieces(self, ctx):
+        pieces = super().collect_usage_pieces(ctx)
+        # Typer writes a required argument as {name}; the convention of Unix usage lines is NAME
+        return [p[1:-1].upper() if p.startswith("{") and p.endswith("}") else p for p in pieces]
+
+
+class _Typer(typer.Typer):
+    def command(self, *args, **kwargs):
+        kwargs.setdefault("cls", _Command)
+        return super().command(*args, **kwargs)
+
+
+app = _Typer(
     name="stereogeo",
     help="Calibrate a stereo camera from one image pair, with no calibration pattern.",
     no_args_is_help=True,
@@ -24,8 +48,32 @@ app = typer.Typer(
 
 def _version(value: bool) -> None:
     if value:
-        typer.echo(f"stereogeo {__version__}")
+        from stereogeo_cli.network.runtime import default_model_path, model_version
+
+        path = default_model_path()
+        try:
+            model = f"model {model_version(path)}"
+        except StereoGeoError as error:
+            model = f"no usable model ({error})"
+        typer.echo(f"stereogeo {__version__}, {model}")
         raise typer.Exit()
+
+
+# What the training side needs beyond the runtime: the modules of the "train" extra (pyproject.toml)
+TRAINING_MODULES = ("torch", "onnx", "moderngl", "skimage", "efficientnet_lite_pytorch")
+INSTALL_TRAINING = 'pip install "stereogeo[train]"'
+
+
+def require_training_extra(command: str) -> None:
+    """Raise a one-line error naming the extra to install when a training module is missing."""
+    import importlib.util
+
+    missing = [name for name in TRAINING_MODULES if importlib.util.find_spec(name) is None]
+    if missing:
+        raise StereoGeoError(
+            f"stereogeo {command} needs the training extra ({', '.join(missing)} not installed): "
+            f"{INSTALL_TRAINING}"
+        )
 
 
 @app.callback()
@@ -97,6 +145,7 @@ def make_data(
 ) -> None:
     """Render a synthetic stereo dataset with exact ground truth (K, R, T, gravity per camera)."""
     try:
+        require_training_extra("make-data")
         from stereogeo_cli.synth.cli_support import run_make_data
 
         run_make_data(
@@ -271,8 +320,11 @@ def calibrate(
     ] = None,
     formats: Annotated[
         str,
-        typer.Option("--format", help="Comma-separated output formats: opencv, ros, kalibr, colmap, json."),
-    ] = "opencv,json",
+        typer.Option(
+            "--format",
+            help="Comma-separated output formats to write: opencv, ros, kalibr, colmap, json.",
+        ),
+    ] = "opencv,ros,kalibr,colmap,json",
     json_out: Annotated[
         bool, typer.Option("--json", help="Print the JSON report on stdout, and nothing else there.")
     ] = False,
@@ -361,8 +413,18 @@ def calibrate(
 
     console = Console()
     _print_summary(result, console)
+    _print_written(console, written)
+
+
+def _print_written(console, written: list[Path]) -> None:
+    """The files written, folder by folder (the last lines of a summary)."""
+    folders: dict[Path, list[str]] = {}
     for path in written:
-        console.print(f"wrote {path}")
+        folders.setdefault(path.parent, []).append(path.name)
+    for folder, names in folders.items():
+        console.print(
+            f"wrote {folder}{'/' if str(folder) != '/' else ''}: {', '.join(names)}", soft_wrap=True
+        )
 
 
 @app.command("batch-calibrate")
@@ -382,8 +444,11 @@ def batch_calibrate(
     ],
     formats: Annotated[
         str,
-        typer.Option("--format", help="Comma-separated output formats: opencv, ros, kalibr, colmap, json."),
-    ] = "opencv,json",
+        typer.Option(
+            "--format",
+            help="Comma-separated output formats to write: opencv, ros, kalibr, colmap, json.",
+        ),
+    ] = "opencv,ros,kalibr,colmap,json",
     baseline: Annotated[
         float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
     ] = None,
@@ -522,6 +587,7 @@ def export_onnx_command(
 ) -> None:
     """Export a checkpoint to one ONNX file (both views, any size), after checking it against torch."""
     try:
+        require_training_extra("export-onnx")
         from stereogeo_cli.network.export import export_onnx
         from stereogeo_cli.refine import parse_sigma_inflation
 
@@ -578,6 +644,7 @@ def average_checkpoints_command(
     """Average the weights of checkpoints of one model (a model soup; with a model and its own fine-tune,
     WiSE-FT). Export the result with export-onnx."""
     try:
+        require_training_extra("average-checkpoints")
         from stereogeo_cli.network.checkpoint import average_checkpoints, write_checkpoint
 
         if weights is None:
@@ -610,6 +677,17 @@ def average_checkpoints_command(
 )
 def train(ctx: typer.Context) -> None:
     """Train the network (resumable; run under torchrun for several processes). --help lists the settings."""
+    try:
+        require_training_extra("train")
+    except StereoGeoError as error:
+        if {"--help", "-h"} & set(ctx.args):
+            typer.echo(
+                "Usage: stereogeo train [SETTINGS]\n\nTrain the network on synthetic renders "
+                "(resumable; runs under torchrun for several processes).\nThe settings are listed once the "
+                f"training extra is installed: {INSTALL_TRAINING}"
+            )
+            raise typer.Exit() from None
+        raise fail(error) from None
     from stereogeo_cli.network.train import main as train_main
 
     train_main(list(ctx.args))

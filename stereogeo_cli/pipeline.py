@@ -29,7 +29,7 @@ from stereogeo_cli.geometry import (
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.exif import FocalPrior
 from stereogeo_cli.io.images import check_pair
-from stereogeo_cli.network.runtime import DEPTH_STRIDE, FieldNetwork, ViewFields
+from stereogeo_cli.network.runtime import DEPTH_STRIDE, FieldNetwork, ViewFields, default_model_path
 from stereogeo_cli.refine import CameraFit, combine_focal, parse_sigma_inflation, refine_camera
 from stereogeo_cli.refine.lines import default_conf as lines_conf
 from stereogeo_cli.refine.lines import detect_segments, detector_pixel, gravity_with_lines
@@ -37,9 +37,6 @@ from stereogeo_cli.refine.manhattan import ManhattanFocal, manhattan_focal
 from stereogeo_cli.refine.manhattan import default_conf as manhattan_conf
 from stereogeo_cli.refine.plumb import PlumbLens, plumb_line_distortion
 from stereogeo_cli.refine.plumb import default_conf as plumb_conf
-
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
-DEFAULT_MODEL = MODELS_DIR / "stereogeo.onnx"
 
 default_conf = {
     "min_mean_confidence": 0.05,  # below this mean field confidence a view is too ambiguous to calibrate
@@ -84,11 +81,6 @@ default_conf = {
     "scale": {},
     "refine": {},  # overrides of stereogeo_cli.refine.default_conf
 }
-
-
-def default_model_path() -> Path:
-    """The model shipped with the package (``models/stereogeo.onnx`` next to the package)."""
-    return DEFAULT_MODEL
 
 
 @dataclass

@@ -79,6 +79,23 @@ def cell_pixel_coordinates(height: int, width: int, stride: int) -> tuple[np.nda
     return x, y
 
 
+def default_model_path() -> Path:
+    """The shipped model: ``stereogeo_cli/models/stereogeo.onnx`` in an installed package (the wheel carries
+    the repository's ``models/`` folder there), or ``models/stereogeo.onnx`` beside the package in a source
+    checkout or an editable install."""
+    package = Path(__file__).resolve().parent.parent
+    candidates = [folder / "stereogeo.onnx" for folder in (package / "models", package.parent / "models")]
+    return next((path for path in candidates if path.is_file()), candidates[0])
+
+
+def model_version(path: str | os.PathLike) -> str:
+    """The version name a model file records (``model_version`` in its metadata), and the start of its
+    SHA-256 so that two exports of one name can be told apart."""
+    network = FieldNetwork(path, threads=1)
+    name = network.metadata.get("model_version", "unnamed")
+    return f"{name} (sha256 {network.model_sha256[:12]})"
+
+
 def file_sha256(path: str | os.PathLike) -> str:
     """SHA-256 of a file (hex), read in 1 MiB blocks."""
     digest = hashlib.sha256()
