@@ -26,7 +26,8 @@ every cut much like the whole image.
 
 ``--aspect`` cuts each (zoomed) image further to a wide strip of that width / height ratio, the full width
 kept and the height cut about the centre (0: no cut): the shape of a driving rig's frames (KITTI's are
-1242 x 375, 3.3:1), never seen in training (4:3 to 5:3, and portrait).
+1242 x 375, 3.3:1), wider than the ordinary training sizes (4:3 to 5:3, and portrait); the training setting
+``wide_data`` adds 2:1 to 3.2:1 (docs/network.md, "Wide frames in training").
 
 ``--by-scene`` splits a rendered dataset by its records' ``scene`` (room, street, …, and ``panorama`` for
 the crops of real panoramas): the panorama crops are real photographs, the renders are not.

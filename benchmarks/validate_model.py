@@ -5,7 +5,7 @@
 The network alone (no feature matches; with --flip the fields are averaged with the mirrored pair's, as
 calibrate's off-by-default ``flip`` option does): per-camera roll, pitch and vFoV errors through the NumPy
 refiner (median, mean, AUC@1/5/10 in degrees), and the median and 68th percentile of the pose head's
-rotation, direction, translation and length errors. This is what the model card reports.
+rotation, direction, translation and length errors. These are the figures models/MODEL_CARD.md reports.
 """
 
 import argparse

@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
+from stereogeo_cli.pipeline import calibrator_conf
 
 IMAGE_EXTENSIONS = frozenset(
     ".png .jpg .jpeg .jpe .jp2 .tif .tiff .bmp .dib .webp .ppm .pgm .pbm .pnm .pxm .pfm .sr .ras .exr .hdr "
@@ -323,16 +324,6 @@ def _init_worker(threads: int) -> None:
     import cv2
 
     cv2.setNumThreads(max(threads, 1))
-
-
-def calibrator_conf(pinhole: bool, lines: bool = True) -> dict:
-    """The Calibrator settings of ``--pinhole`` (no lens distortion fitted) and ``--no-lines`` (gravity and
-    focal length from the fields alone: neither vertical segments nor vanishing points)."""
-    conf: dict = {"fuse": {"distortion": False}} if pinhole else {}
-    if not lines:
-        conf["lines"] = {"enabled": False}
-        conf["manhattan"] = {"enabled": False}
-    return conf
 
 
 def _worker_task(entry: PairEntry, job: PairJob) -> PairOutcome:

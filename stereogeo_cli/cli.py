@@ -379,25 +379,19 @@ def calibrate(
             _check_output_folder(output)
         if preview is not None:
             _check_output_folder(preview.parent)
-        from stereogeo_cli.batch import calibrator_conf
+        from stereogeo_cli.api import calibrate as calibrate_pair
         from stereogeo_cli.io import load_image, write_calibration
-        from stereogeo_cli.io.exif import exif_focals
-        from stereogeo_cli.pipeline import Calibrator
 
-        left_image, right_image = load_image(left), load_image(right)
-        conf = calibrator_conf(pinhole, lines)
-        if focal_sigma is not None:
-            conf["known_focal_sigma"] = focal_sigma
-        calibrator = Calibrator(model, threads=threads, conf=conf)
-        result = calibrator.calibrate(
-            left_image, right_image, baseline_m=baseline, focal_left=focal_left, focal_right=focal_right,
-            exif=exif_focals((left, right), (left_image, right_image)) if exif else None,
+        result = calibrate_pair(
+            left, right, baseline=baseline, focal_left=focal_left, focal_right=focal_right,
+            focal_sigma=focal_sigma, pinhole=pinhole, lines=lines, exif=exif, model=model, threads=threads,
         )  # fmt: skip
         written = write_calibration(output, result.calibration, names) if output is not None else []
         if preview is not None:
             from stereogeo_cli.io.preview import write_preview
 
-            written.append(write_preview(preview, left_image, right_image, result.calibration))
+            images = (load_image(left), load_image(right))
+            written.append(write_preview(preview, *images, result.calibration))
     except StereoGeoError as error:
         raise fail(error) from None
     except (KeyboardInterrupt, typer.Exit):
@@ -781,13 +775,14 @@ def _print_evaluation(results: dict) -> None:
     names = (("roll", "roll"), ("pitch", "pitch"), ("vfov", "vFoV"), ("rotation", "rotation"),
              ("direction", "t direction"), ("baseline", "baseline length"))  # fmt: skip
     shares = [
-        f"{label} {100 * metrics[f'{name}_sigma']['within_1_sigma']:.0f} %"
+        f"{label} {100 * metrics[f'{name}_sigma']['within_1_sigma']:.0f} % / "
+        f"{100 * metrics[f'{name}_sigma']['within_3_sigma']:.0f} %"
         for name, label in names
         if f"{name}_sigma" in metrics
     ]
     if shares:
         console.print(
-            "errors within the reported 1-sigma (68 % for honest sigmas): " + ", ".join(shares),
+            "errors within the reported 1 / 3 sigma (68 % / 99.7 % for honest sigmas): " + ", ".join(shares),
             soft_wrap=True,
         )
     for reason in results["skipped"]:

@@ -155,6 +155,16 @@ def hold_alike_focals(
     )
 
 
+def calibrator_conf(pinhole: bool, lines: bool = True) -> dict:
+    """The Calibrator settings of ``--pinhole`` (no lens distortion fitted) and ``--no-lines`` (gravity and
+    focal length from the fields alone: neither vertical segments nor vanishing points)."""
+    conf: dict = {"fuse": {"distortion": False}} if pinhole else {}
+    if not lines:
+        conf["lines"] = {"enabled": False}
+        conf["manhattan"] = {"enabled": False}
+    return conf
+
+
 class Calibrator:
     """Calibrates stereo pairs with one network session.
 
@@ -617,12 +627,17 @@ class Calibrator:
             elif not np.isfinite(baseline) or baseline <= 1e-6:
                 baseline = 1.0
                 warnings.append("the pose head gave no usable metric scale: T has unit length")
+        T = pose.translation(baseline)
+        if T[0] > 0:
+            warnings.append(
+                "the right camera sits to the left of the left one (T_x > 0): were the two images swapped?"
+            )
         timing["total"] = (time.perf_counter() - start) * 1e3
         calibration = StereoCalibration(
             K_left=K_left, K_right=K_right,
             image_size_left=(fit_left.width, fit_left.height),
             image_size_right=(fit_right.width, fit_right.height),
-            R=pose.R, T=pose.translation(baseline), D_left=D_left, D_right=D_right,
+            R=pose.R, T=T, D_left=D_left, D_right=D_right,
             gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
             sigma_left=self.reported_sigma(
                 fit_left, _focal_from_fields(priors[0], held[0]), self._lines_spread(priors[0])

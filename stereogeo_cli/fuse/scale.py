@@ -13,7 +13,7 @@ parallax and its cell's predicted spread fix it; the estimate is their weighted 
 
 The scene's scale is one unknown for the whole image: the cells' errors are not independent, so the
 1-sigma is not the spread of the votes but a figure measured on validation renders (the model records it,
-``depth_sigma_scale_rel``).
+``depth_sigma_scale_rel``). The route and its measurements: docs/network.md, "A depth head for the baseline".
 """
 
 from __future__ import annotations

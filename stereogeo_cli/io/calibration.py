@@ -1,7 +1,8 @@
 """The calibration of a stereo rig as the writers and the JSON report see it, and its rectification.
 
-Conventions (DESIGN §3): OpenCV camera frame, pixel (0, 0) at the centre of the top-left pixel,
-``X_right = R @ X_left + T`` with T in metres. Image sizes are (width, height) in pixels.
+Conventions, the same in every output file (docs/io.md, "Output files"): OpenCV camera frame (x right,
+y down, z forward), pixel (0, 0) at the centre of the top-left pixel, ``X_right = R @ X_left + T`` with T
+in metres. Image sizes are (width, height) in pixels.
 """
 
 from __future__ import annotations
@@ -111,7 +112,9 @@ class StereoCalibration:
         return float(np.linalg.norm(self.T))
 
     def to_report(self) -> dict[str, Any]:
-        """The JSON report of DESIGN §3 (keys as listed there, plus ``dist`` per camera and ``notes``)."""
+        """The JSON report (docs/io.md, "report.json"): per camera its size, K, focal length, vFoV, roll,
+        pitch, up vector, sigmas and ``dist``; then R, T, the baseline, the scale's source, the matches, the
+        timings, the model and ``notes``; then the keys of ``extra_report`` that none of these take."""
         return {
             "left": _camera_report(
                 self.K_left, self.D_left, self.image_size_left, self.gravity_left, self.sigma_left

@@ -13,7 +13,7 @@ Two routes, the first that applies:
   millimetres times the sensor's pixels per millimetre, scaled to the image's width when it was resized.
   Makers fill the focal-plane resolution less consistently: 1-sigma 8 %.
 
-A photo that was cropped no longer has the focal length its tags describe in these terms. Where EXIF
+A photo that was cropped does not have the focal length its tags describe in these terms. Where EXIF
 records the original pixel size (``PixelXDimension``, ``PixelYDimension``) and its shape differs from the
 file's, the tags are not used and the reason is returned. A resize keeps the shape and is fine. A crop that
 keeps the shape, or a digital zoom whose tags were not updated, cannot be seen here: ``calibrate`` warns

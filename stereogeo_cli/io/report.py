@@ -1,4 +1,4 @@
-"""``report.json``: the JSON report of DESIGN §3, as ``calibrate --json`` prints it."""
+"""``report.json``: the JSON report (docs/io.md, "report.json"), as ``calibrate --json`` prints it."""
 
 from __future__ import annotations
 

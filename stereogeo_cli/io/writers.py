@@ -1,4 +1,7 @@
-"""``write_calibration``: every output format of DESIGN §7 from one :class:`StereoCalibration`."""
+"""``write_calibration``: every output format from one :class:`StereoCalibration`.
+
+The formats and their files are listed in docs/io.md, "Output files".
+"""
 
 from __future__ import annotations
 

@@ -83,7 +83,7 @@ def _built(checkpoint: dict[str, Any], what: str) -> StereoGeoNet:
         raise StereoGeoError(f"{what} does not fit the model: {first_line}") from None
 
 
-# Options added after models were shipped: their values for a checkpoint that predates them.
+# A checkpoint whose conf lacks these options holds a model built without them: these values rebuild it.
 LEGACY_CONF: dict[str, Any] = {"pose_match_stride": 16, "pose_scale_votes": False}
 
 

@@ -285,7 +285,8 @@ class SizedBatches(torch.utils.data.Sampler):
     ``wide`` = (first wide index, number of wide sizes, share): the indices from the first wide one on
     form a pool of their own, drawn only into wide batches, whose size indices follow the ordinary ones;
     wide batches are ``share`` of all (the wide pool is cycled if it is smaller than that needs). Without
-    ``wide`` the stream is the one every run before wide frames saw.
+    ``wide`` the draws are one permutation of all pairs, then one size per batch, in that order: the stream
+    a seed gives does not depend on the wide-batch code.
 
     Iteration starts at ``start_batch`` of the stream of epochs, so a resumed run sees exactly the
     batches it would have seen without the interruption.

@@ -1,4 +1,4 @@
-"""Training losses (DESIGN §5): field errors, camera errors after the unrolled refiner, and pose errors.
+"""Training losses: field errors, camera errors after the unrolled refiner, and pose errors.
 
 Weights live in :data:`default_conf`; the training config overrides them.
 """

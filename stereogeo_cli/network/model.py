@@ -451,7 +451,8 @@ class StereoGeoNet(nn.Module):
         # unchanged): the metric scale is mostly unknowable from one pair, and its large, noisy gradients
         # would otherwise drown the field heads' in the shared features under gradient clipping.
         "pose_encoder_grad": 0.1,
-        "channels_last": True,  # NHWC weights and activations: about 1.5x faster in torch on CPU
+        # NHWC weights and activations: about 1.5x faster in torch on CPU (docs/network.md, "Architecture")
+        "channels_last": True,
         # a per-cell depth head (DepthHead: log depth over focal, stride 8) for the metric baseline
         "depth_head": False,
         "depth_dim": 64,

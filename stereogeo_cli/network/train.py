@@ -396,7 +396,9 @@ def train(conf: dict) -> dict:
             outputs = net(batch["left"], batch["right"])
             held, is_wide = None, int(batch["size_index"][0]) >= len(conf["sizes"])
             wide_seen += is_wide
-            # A wide batch has no teacher: the teacher never saw wide frames (that is what it is fixing).
+            # A wide batch has no teacher: wide frames are what the fine-tune corrects the teacher's reading
+            # of, so its panorama crops are held to their ground truth alone (docs/network.md, "Wide frames
+            # in training").
             if teacher is not None and not is_wide:
                 with torch.no_grad():
                     held = teacher(batch["left"], batch["right"])

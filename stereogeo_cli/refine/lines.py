@@ -28,7 +28,8 @@ default_conf = {
     "enabled": True,
     # the detector runs on the image reduced to at most this short side (the validation renders' 240 px;
     # 448 takes 20 ms more per image; EuRoC's roll / pitch read 1.60° / 0.85° at 448, 1.75° / 1.05° at 320
-    # and 2.31° / 0.99° at 256, within the noise of its 8 views)
+    # and 2.31° / 0.99° at 256, within the noise of its 8 views: docs/refine.md, "What was tried and
+    # measured")
     "max_short_side": 256,
     "min_length_px": 10.0,  # shortest segment used, in network-input pixels
     "angle_deg": 5.0,  # a segment this close to the network's up field counts as vertical
@@ -37,7 +38,7 @@ default_conf = {
     "weight": 7.5,
     # (roll, pitch): multiply the 1-sigma figures of a gravity fitted with segments, which the refiner's
     # sigma_inflation (the fields' own) overstates: the factors that put 68 % of the validation set's errors
-    # within 1 sigma after calibrate shares gravity between the cameras (docs/refine.md)
+    # within 1 sigma after calibrate shares gravity between the cameras (docs/refine.md, "Uncertainty")
     "sigma_scale": (0.12, 0.33),
 }
 

@@ -41,13 +41,15 @@ default_conf = {
     "focal_starts": (0.6, 0.8, 1.0, 1.25, 1.6),  # starts, as multiples of the fields' focal length
     "yaw_step_deg": 7.5,  # starts of the frame's yaw in [0°, 90°)
     "iterations": 40,
-    # the Hessian's 1-sigma of log f, widened and floored (module docstring)
+    # the Hessian's 1-sigma of log f, widened and floored (module docstring; docs/refine.md, "Vanishing
+    # points", "Its sigma")
     "sigma_scale": 3.0,
     "sigma_floor": 0.08,
     # combined with the fields' focal length only within this many combined sigmas of it (pipeline)
     "gate_sigmas": 2.0,
     # not used where the image's edges read a lens (refine/plumb.py) more than this many sigmas from none:
-    # the raw chessboard rig's views read 5.0–7.1, Middlebury's pinhole views at most 3.3 (pipeline)
+    # the raw chessboard rig's views read 5.0–7.1, Middlebury's pinhole views at most 3.3 (pipeline;
+    # docs/refine.md, "Vanishing points", "Where it is not used, and why")
     "lens_sigmas": 4.0,
     # the reported focal sigma of a combination takes in this share of the two reads' distance in log f
     # (pipeline.Calibrator._lines_spread; it widens only what is reported)

@@ -15,7 +15,8 @@ gets none (``max_sigma``).
 
 The fusion (``fuse/pose.py``) weighs the estimate in its test of whether the matches show a lens at all:
 a camera whose matches bend too little to pass it alone gets its lens where the edges agree. The lens's
-k itself stays the matches'.
+k itself stays the matches'. The settings below and what they give on real sets: docs/refine.md, "Lens
+from straight edges".
 
 The result is a curvature ``kappa`` in pixels⁻² of the image: undistorted = c + (p − c) / (1 + kappa·r²),
 r = |p − c|, so the division model's k in the normalised coordinates of a focal length f is kappa·f².

@@ -21,7 +21,9 @@ class SynthConfig:
     parallel_share: float = 0.3  # share of rigs with R = I exactly (parallel cameras)
     toe_in_deg: float = 4.0  # largest relative rotation between the cameras otherwise, degrees
     panorama_share: float = 0.2  # share of pairs that are two crops of one panorama (T = 0)
-    # a crop is at most this many times magnified against its panorama (narrower crops are widened)
+    # a crop is at most this many times magnified against its panorama (narrower crops are widened): an
+    # upsampled crop is blurred, and blur would tell the network a narrow lens, a cue that fails on real
+    # photographs (docs/synth.md, "What the sampler draws")
     panorama_max_upsampling: float = 1.5
     outdoor_share: float = 0.5  # share of rendered scenes that are outdoor
     close_share: float = 0.25  # share of indoor scenes that are close range (a desk seen from 0.35–1.5 m)

@@ -66,7 +66,8 @@ def write_sample(folder: Path, sample: StereoSample) -> str:
     return json.dumps(sample.calib, separators=(", ", ": "))
 
 
-# settings added later, at the values that render what older folders hold (no desks; crops ≤ 1.5× magnified)
+# a make-data.json without one of these settings belongs to a folder rendered as these values render it
+# (no desks; crops ≤ 1.5× magnified), so a resume compares it with them filled in
 _ADDED_SETTINGS = {"close_share": 0.0, "panorama_max_upsampling": 1.5}
 
 
@@ -110,7 +111,7 @@ def _prepare(folder: Path, seed: int, config: SynthConfig) -> None:
     settings = _settings(seed, config)
     if settings_path.exists():
         previous = json.loads(settings_path.read_text())
-        # settings added since a folder was made take the value that renders what it holds
+        # a setting the file lacks takes the value that renders what the folder holds (_ADDED_SETTINGS)
         for key, value in _ADDED_SETTINGS.items():
             previous.get("config", {}).setdefault(key, value)
         if previous != settings:

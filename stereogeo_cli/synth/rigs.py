@@ -45,7 +45,8 @@ class Camera:
         return xy, z
 
     def to_calib(self) -> dict:
-        """The camera object of calib.jsonl (DESIGN §3)."""
+        """The camera object of a calib.jsonl record: K, an empty ``dist``, the size and the up vector
+        (docs/synth.md, "What it writes")."""
         return {
             "K": self.K.tolist(),
             "dist": [],

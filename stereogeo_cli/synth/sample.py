@@ -25,7 +25,8 @@ class StereoSample:
     """A rendered pair and its exact ground truth.
 
     left, right: [H x W x 3] uint8 RGB (both views have the same size).
-    calib: the calib.jsonl object (DESIGN §3) plus "kind", "scene", "seed", "index", "baseline_m", "vfov_deg".
+    calib: the calib.jsonl record (id, left, right, R, T, notes; docs/synth.md, "What it writes") plus
+        "rectified", "kind", "scene", "seed", "index", "baseline_m", "vfov_deg".
     depth_left, depth_right: [H x W] float32 z-depth in metres (0 = panorama / nothing), or None.
     """
 
@@ -184,7 +185,8 @@ def sample_pair(
         if outdoor
         else ("room" if rng.random() < 0.75 else "corridor")
     )
-    # its own stream, so that close_share = 0 renders exactly what datasets from before "desk" hold
+    # its own stream: every other draw of the pair is the same whatever close_share is, so close_share = 0
+    # renders exactly the pairs of a sampler without desk scenes
     if not outdoor and np.random.default_rng([seed, index, 2]).random() < cfg.close_share:
         scene_kind = "desk"
     if kind is not None:

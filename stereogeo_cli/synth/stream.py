@@ -1,6 +1,6 @@
 """A streaming torch dataset that renders pairs on the fly with the same sampler as make-data.
 
-The only module of the package that imports torch. Each DataLoader worker (and each distributed rank)
+The only module of ``synth`` that imports torch. Each DataLoader worker (and each distributed rank)
 renders its own share of indices with its own GL context, so nothing is rendered twice.
 """
 

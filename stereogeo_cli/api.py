@@ -1,0 +1,75 @@
+"""The Python front door: ``calibrate(left, right)`` gives exactly what ``stereogeo calibrate`` gives."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.pipeline import CalibrationResult, Calibrator, calibrator_conf
+
+ImageInput = str | os.PathLike | np.ndarray
+
+
+def calibrate(
+    left: ImageInput,
+    right: ImageInput,
+    *,
+    baseline: float | None = None,
+    focal_left: float | None = None,
+    focal_right: float | None = None,
+    focal_sigma: float | None = None,
+    pinhole: bool = False,
+    lines: bool = True,
+    exif: bool = True,
+    model: str | os.PathLike | None = None,
+    threads: int = 0,
+    calibrator: Calibrator | None = None,
+) -> CalibrationResult:
+    """Calibrate one stereo pair, as ``stereogeo calibrate`` does with the same options.
+
+    Args:
+        left, right: image files (their EXIF focal length is read unless ``exif`` is False), or RGB
+            arrays [H x W x 3] uint8 as :func:`stereogeo_cli.io.load_image` returns them (no EXIF then).
+        baseline: the rig's baseline in metres, if known (sets |T|).
+        focal_left, focal_right: known focal lengths in pixels; held fixed, or priors with the relative
+            1-sigma ``focal_sigma``.
+        pinhole: fit no lens distortion (rectified or undistorted images).
+        lines: use the images' line segments (vertical ones for gravity, vanishing points for the focal).
+        model, threads: the ONNX model (default: the shipped one) and the network's threads.
+        calibrator: a :class:`Calibrator` to reuse across pairs (``model``, ``threads``, ``pinhole`` and
+            ``lines`` are then its own).
+
+    Returns the :class:`CalibrationResult`; ``result.calibration`` is what the files are written from
+    (:func:`stereogeo_cli.io.write_calibration`) and ``result.report()`` the JSON report.
+
+    Raises :class:`StereoGeoError` for bad input (its ``exit_code`` is the CLI's).
+    """
+    from stereogeo_cli.io import load_image
+    from stereogeo_cli.io.exif import exif_focals
+
+    for name, value in (("baseline", baseline), ("focal_left", focal_left), ("focal_right", focal_right)):
+        if value is not None and not (value > 0 and np.isfinite(value)):
+            raise StereoGeoError(f"{name} must be a positive number, got {value}")
+    if focal_sigma is not None:
+        if not 0 < focal_sigma < 1:
+            raise StereoGeoError(f"focal sigma must be a fraction between 0 and 1, got {focal_sigma}")
+        if focal_left is None and focal_right is None:
+            raise StereoGeoError("a focal sigma needs a left or right focal length")
+    images = [image if isinstance(image, np.ndarray) else load_image(image) for image in (left, right)]
+    paths = [None if isinstance(image, np.ndarray) else Path(image) for image in (left, right)]
+    if calibrator is None:
+        conf = calibrator_conf(pinhole, lines)
+        if focal_sigma is not None:
+            conf["known_focal_sigma"] = focal_sigma
+        calibrator = Calibrator(model, threads=threads, conf=conf)
+    elif focal_sigma is not None:
+        raise StereoGeoError("give focal_sigma in the calibrator's conf (known_focal_sigma) when reusing one")
+    found = None
+    if exif and None not in paths:
+        found = exif_focals(paths, images)
+    return calibrator.calibrate(
+        images[0], images[1], baseline_m=baseline, focal_left=focal_left, focal_right=focal_right, exif=found
+    )

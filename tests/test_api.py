@@ -1,0 +1,52 @@
+"""The Python front door: the same calibration as the CLI, and a swapped pair gives the mirrored rig."""
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import stereogeo_cli
+from stereogeo_cli.cli import app
+from stereogeo_cli.geometry import rotation_angle
+
+
+def test_api_result_equals_the_cli_report(example_pair, onnx_model):
+    result = stereogeo_cli.calibrate(*example_pair, model=onnx_model, threads=1)
+    cli = CliRunner().invoke(app, ["calibrate", *map(str, example_pair), "--model", str(onnx_model), "--json"])
+    assert cli.exit_code == 0, cli.output
+    report, api = json.loads(cli.stdout), result.report()
+    for side in ("left", "right"):
+        for key in ("focal_px", "roll_deg", "pitch_deg"):
+            assert api[side][key] == pytest.approx(report[side][key], rel=1e-9, abs=1e-9)
+    np.testing.assert_allclose(api["R"], report["R"], atol=1e-12)
+    np.testing.assert_allclose(api["T"], report["T"], atol=1e-12)
+
+
+def test_api_takes_arrays_and_rejects_bad_input(example_pair, onnx_model):
+    images = [stereogeo_cli.load_image(p) for p in example_pair]
+    calibrator = stereogeo_cli.Calibrator(onnx_model, threads=1)
+    from_arrays = stereogeo_cli.calibrate(*images, calibrator=calibrator)
+    from_files = stereogeo_cli.calibrate(*example_pair, calibrator=calibrator)  # no EXIF in these PNGs
+    np.testing.assert_allclose(from_arrays.calibration.K_left, from_files.calibration.K_left)
+    with pytest.raises(stereogeo_cli.StereoGeoError, match="baseline"):
+        stereogeo_cli.calibrate(*images, baseline=-1.0, calibrator=calibrator)
+
+
+def test_swapped_pair_gives_the_mirrored_rig(example_pair, onnx_model):
+    calibrator = stereogeo_cli.Calibrator(onnx_model, threads=1)
+    images = [stereogeo_cli.load_image(p) for p in example_pair]
+    direct = calibrator.calibrate(*images).calibration
+    swapped = calibrator.calibrate(*images[::-1]).calibration
+    # each camera's focal length within 1 %
+    assert swapped.K_right[0, 0] == pytest.approx(direct.K_left[0, 0], rel=0.01)
+    assert swapped.K_left[0, 0] == pytest.approx(direct.K_right[0, 0], rel=0.01)
+    # the mirror of (R, T) is (Rᵀ, -Rᵀ T): R within 0.05°, |T| within 5 %
+    assert np.degrees(rotation_angle(swapped.R @ direct.R)) < 0.05
+    assert np.linalg.norm(swapped.T) == pytest.approx(np.linalg.norm(direct.T), rel=0.05)
+    mirrored = -direct.R.T @ direct.T
+    cos = mirrored @ swapped.T / (np.linalg.norm(mirrored) * np.linalg.norm(swapped.T))
+    assert np.degrees(np.arccos(min(1.0, cos))) < 1.0
+    # the swapped files put the right camera to the left of the left one: the user is warned
+    assert swapped.T[0] > 0 and any("swapped" in note for note in swapped.notes.split("; "))
+    assert not any("swapped" in note for note in direct.notes.split("; "))
