@@ -25,7 +25,8 @@ Same rig (``--same-rig``, :func:`calibrate_rig`): one focal length per camera an
 gravity per pair. Pass 1 calibrates each pair alone. Per camera the focal lengths are combined in log f: the
 median as a robust centre (one vote per pair: a confidently wrong pair cannot pull it), pairs further than
 3·max(σᵢ, 1.4826·MAD) from it rejected, then the inverse-variance weighted mean of the rest (σ inflated by the
-Birge ratio when the pairs scatter more than their σ say). Pass 2 re-runs every pair with those focal lengths
+Birge ratio when the pairs scatter more than their σ say, and never below a typical pair's σ: the network's
+error on one camera is mostly common to all its pairs). Pass 2 re-runs every pair with those focal lengths
 held fixed, which re-estimates its gravity and its relative pose with consistent intrinsics. The matches
 consistent with a pair's pass-2 pose (Sampson error below :data:`POOL_THRESHOLD_PX`) of all pairs are
 concatenated — they share K and R, T, so this is exact — into one relative-pose estimation, with the chordal
@@ -61,6 +62,11 @@ IMAGE_EXTENSIONS = frozenset(
 )  # what cv2.imdecode reads (when OpenCV is built with the codec)
 POOL_THRESHOLD_PX = 2.0  # a match joins the same-rig pool if its Sampson error under its pair's pose is below
 FOCAL_REJECT_SIGMAS = 3.0  # same-rig: focal estimates this many sigmas from the weighted median are dropped
+# same-rig: the share of one pair's focal variance that every pair of the rig has in common. The network's
+# error on one camera is mostly a bias of that camera (the same lens, the same kind of scene), which no
+# number of pairs averages away and which the pairs' scatter cannot show; 1 keeps the combined focal
+# length's sigma at least a typical pair's (docs/batch.md, "Same rig")
+FOCAL_COMMON_SHARE = 1.0
 RIG_FOLDER = "rig"
 CSV_COLUMNS = (
     "name", "status", "error",
@@ -432,8 +438,9 @@ def combine_focals(focals: Sequence[float], sigmas: Sequence[float]) -> FocalEst
     Centre: the median (not weighted: a pair with a small but wrong sigma must not own it). Rejected:
     estimates more than 3·max(σᵢ, 1.4826·MAD) from it. Result: the weighted mean (w = 1/σ²) of the rest;
     its sigma is √(1/Σw) times the Birge ratio √(χ²/(k-1)) when that exceeds 1 (the estimates scatter more
-    than their sigmas say). A missing or non-finite sigma counts
-    as the largest finite one (or 100 % when there is none).
+    than their sigmas say), and at least √FOCAL_COMMON_SHARE times the median sigma of the pairs used (the
+    error they have in common does not average away). A missing or non-finite sigma counts as the largest
+    finite one (or 100 % when there is none).
     """
     f = np.asarray(focals, dtype=float)
     s = np.asarray(sigmas, dtype=float) / f  # sigma of log f
@@ -452,6 +459,7 @@ def combine_focals(focals: Sequence[float], sigmas: Sequence[float]) -> FocalEst
     if used.sum() > 1:
         birge = math.sqrt(float(np.sum(wu * (xu - mean) ** 2)) / (used.sum() - 1))
         sigma *= max(1.0, birge)
+    sigma = max(sigma, math.sqrt(FOCAL_COMMON_SHARE) * float(np.median(s[used])))
     focal = math.exp(mean)
     return FocalEstimate(focal, focal * sigma, used)
 

@@ -288,6 +288,19 @@ def test_focal_combination_beats_single_pairs_and_drops_outliers():
     assert one.focal_px == pytest.approx(500.0) and one.sigma_px == pytest.approx(25.0) and one.used.all()
 
 
+def test_focal_combination_keeps_the_error_common_to_a_rig():
+    """Pairs of one camera that all read it 30 % short (a bias of the network on that camera) with
+    10 % sigmas: more pairs must not make the combined focal length look more certain than one pair."""
+    rng = np.random.default_rng(5)
+    true_f = 700.0
+    for n in (2, 10, 50):
+        focals = true_f * 0.7 * np.exp(rng.normal(0.0, 0.02, n))
+        estimate = combine_focals(focals, 0.1 * focals)
+        assert estimate.sigma_px / estimate.focal_px == pytest.approx(0.1, rel=0.05)
+        # the truth stays within 4 reported sigmas, however many pairs
+        assert abs(np.log(estimate.focal_px / true_f)) < 4 * estimate.sigma_px / estimate.focal_px
+
+
 def synthetic_rig_matches(rng, K_left, K_right, R, T, n=60, noise_px=0.7, outliers=0.15) -> Matches:
     X = np.column_stack([rng.uniform(-4, 4, n), rng.uniform(-3, 3, n), rng.uniform(3, 25, n)])
     left = (X / X[:, 2:]) @ K_left.T

@@ -95,14 +95,14 @@ def test_missing_ground_truth_is_skipped_and_said(dataset, onnx_model, tmp_path)
     assert "skipped: roll: no ground truth" in result.stdout
     assert "skipped: relative pose: no ground truth" in result.stdout
     # with no gravity and no pose, only the vFoV's sigmas can be checked
-    share = result.stdout.split("errors within the reported 1-sigma")[1].splitlines()[0]
+    share = result.stdout.split("errors within the reported 1 / 3 sigma")[1].splitlines()[0]
     assert "vFoV" in share and "roll" not in share and "rotation" not in share
 
 
 def test_the_table_says_how_many_errors_lie_within_their_sigmas(dataset, onnx_model):
     result = CliRunner().invoke(app, ["evaluate", str(dataset), "--model", str(onnx_model)])
     assert result.exit_code == 0, result.output
-    share = result.stdout.split("errors within the reported 1-sigma")[1].splitlines()[0]
+    share = result.stdout.split("errors within the reported 1 / 3 sigma")[1].splitlines()[0]
     for label in ("roll", "pitch", "vFoV", "rotation", "t direction"):
         assert f"{label} " in share
 
