@@ -4,7 +4,7 @@ Pair discovery (:func:`discover_pairs`), in this order — the first layout pres
 
 1. ``FOLDER/left/`` and ``FOLDER/right/``: a pair is a left and a right image with the **same name
    stem** (``left/0001.png`` + ``right/0001.png``; the extensions may differ). ``make-data`` datasets and
-   ``../shared/data/real-dev/*`` have this layout.
+   the evaluation sets (``calib.jsonl`` beside ``left/`` and ``right/``) have this layout.
 2. ``FOLDER/cam0/`` (left) and ``FOLDER/cam1/`` (right), matched the same way; EuRoC/ASL's
    ``cam0/data/`` and ``cam1/data/`` are used when present.
 3. Otherwise the images in ``FOLDER`` itself: ``<name>_left.<ext>`` + ``<name>_right.<ext>`` or
@@ -230,7 +230,7 @@ class RigEvidence:
 
 @dataclass
 class PairOutcome:
-    """One pair's result: ``status`` "ok" with its ``report`` (DESIGN §3), or "failed" with ``error``."""
+    """One pair's result: ``status`` "ok" with its JSON ``report``, or "failed" with ``error``."""
 
     name: str
     left: Path | None

@@ -1,10 +1,10 @@
 """``stereogeo evaluate``: the calibrate pipeline on a dataset with ground truth, and the paper's metrics.
 
-Dataset layout (DESIGN §3): ``left/<id>.png``, ``right/<id>.png``, ``calib.jsonl``. Per camera: roll,
-pitch and vFoV errors (degrees) and the relative focal error; per pair: the relative rotation error
-(degrees), the translation error (metres) and the translation-direction error (degrees). A metric whose
-ground truth is missing (e.g. no gravity) is skipped and said so. Optional baselines use the ground-truth
-intrinsics: ORB (5000 features) or SIFT matches, essential matrix and recoverPose.
+Dataset layout (what ``make-data`` writes): ``left/<id>.png``, ``right/<id>.png``, ``calib.jsonl``.
+Per camera: roll, pitch and vFoV errors (degrees) and the relative focal error; per pair: the relative
+rotation error (degrees), the translation error (metres) and the translation-direction error (degrees).
+A metric whose ground truth is missing (e.g. no gravity) is skipped and said so. Optional baselines use
+the ground-truth intrinsics: ORB (5000 features) or SIFT matches, essential matrix and recoverPose.
 """
 
 from __future__ import annotations

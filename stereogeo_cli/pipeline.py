@@ -46,9 +46,8 @@ default_conf = {
     # an EXIF focal length (a prior, combined with the fields' by their sigmas) whose fields read it this many
     # combined sigmas away gets a warning: the photo may be cropped or digitally zoomed
     "exif_warn_sigmas": 4.0,
-    # Also run the mirrored pair and average the fields (twice the network time). Off: with stereogeo-m2 it
-    # lowered the mean errors on renders but raised the median roll error and the real-image vFoV errors
-    # (docs/network.md, "Mirror averaging").
+    # Also run the mirrored pair and average the fields (twice the network time). Off: it lowers the mean
+    # errors on renders but raises the median roll error and the real-image vFoV errors (docs/network.md).
     "flip": False,
     # With too few matches to tell the two focal lengths' ratio (the pose from the pose head), two images of
     # one size whose fields read focal lengths this many combined sigmas apart or closer are taken for one
@@ -58,10 +57,7 @@ default_conf = {
     # Each camera's gravity averaged with the other camera's seen through the fused R, the focal lengths left
     # as they are (stereogeo_cli/fuse/gravity.py). The correlation of the two cameras' gravity errors
     # only widens the reported sigmas: the errors' own correlation on the validation renders is 0.67 (pitch)
-    # to 0.75 (roll) with stereogeo-m5; 0.85 is the value that keeps 68 % of those errors within 1 sigma
-    # after sharing (66.7 % roll, 67.3 % pitch; 0.7 gave 66.0 % and 65.2 %). Those are the fields' figures;
-    # with vertical lines (below) their sigma_scale was set after sharing at this correlation (0.95 changed
-    # the coverage by under 1 point).
+    # to 0.75 (roll); 0.85 keeps 68 % of those errors within 1 sigma after sharing (docs/refine.md).
     "share_gravity": True,
     "gravity_view_correlation": 0.85,
     # vertical line segments set the gravity together with the fields, after the fusion has measured the
@@ -97,7 +93,7 @@ class CalibrationResult:
     matches: Matches | None = None  # all feature matches (batch-calibrate --same-rig pools them)
 
     def report(self) -> dict:
-        """The JSON report (DESIGN §3), with the pose's provenance and any warnings."""
+        """The JSON report (docs/io.md), with the pose's provenance and any warnings."""
         return self.calibration.to_report()
 
 

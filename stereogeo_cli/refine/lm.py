@@ -31,7 +31,8 @@ default_conf = {
     "max_samples": 3000,  # fields are sub-sampled on a regular grid down to about this many pixels
     "min_vfov_deg": 5.0,  # log f is clamped so the vFoV stays within these bounds
     "max_vfov_deg": 150.0,
-    "init": "fields",  # "fields": roll/pitch read off the fields, focal by a 1-D search; "level": DESIGN §4
+    # "fields": roll/pitch read off the fields, focal by a 1-D search; "level": level, f = 0.7·max(w, h)
+    "init": "fields",
     "init_vfov_grid_deg": (15, 25, 35, 45, 55, 65, 80, 95, 110, 130),  # candidates for the focal search
     # multiplies the 1-sigma figures (network errors are spatially correlated): one factor, or three for
     # (roll, pitch, vFoV)
