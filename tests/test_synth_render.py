@@ -183,27 +183,36 @@ def test_panorama_crops_have_exact_roll_pitch_and_fov():
         for side, image in (("left", sample.left), ("right", sample.right)):
             cam = c[side]
             K, g = np.array(cam["K"]), np.array(cam["gravity_up"])
-            # the up direction and the panorama's north/east are unknown to calib: find the yaw by search,
-            # using rays built only from K and gravity (roll/pitch) as the dataset states them
             roll, pitch = roll_pitch_from_gravity(g)
-            R_level_to_cam = camera_rotation(0.0, float(roll), float(pitch))
-            ys, xs = np.mgrid[8 : cam["height"] - 8 : 6, 8 : cam["width"] - 8 : 6]
-            rays = np.linalg.inv(K) @ np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)])
-            d = R_level_to_cam.T @ rays
-            d /= np.linalg.norm(d, axis=0)
-            lat = np.arcsin(d[2])
-            lon0 = np.arctan2(d[1], d[0])
-            rows = (0.5 - lat / np.pi) * pano.shape[0] - 0.5
-            best = np.inf
-            for shift in np.linspace(0, 1, 720, endpoint=False):
-                cols = ((0.5 - lon0 / (2 * np.pi) + shift) % 1.0) * pano.shape[1] - 0.5
-                ref = cv2.remap(
-                    pano,
-                    cols.astype(np.float32).reshape(1, -1),
-                    rows.astype(np.float32).reshape(1, -1),
-                    cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_WRAP,
-                )[0]
-                err = np.abs(ref - image[ys.ravel(), xs.ravel()]).mean()
-                best = min(best, err)
-            assert best < 3.0, (index, side, best)  # roll or pitch off by 2°, or f by 5%: 5-9 levels
+            exact = _panorama_mismatch(pano, image, cam, K, roll, pitch)
+            # the stated geometry must fit far better than one 1° off in pitch or 5 % off in focal length
+            # (exact: 1.5-7 grey levels, the texture's resampling; off: 11-23 on these panoramas)
+            off_pitch = _panorama_mismatch(pano, image, cam, K, roll, pitch + np.radians(1.0))
+            off_focal = _panorama_mismatch(pano, image, cam, K @ np.diag([1.05, 1.05, 1.0]), roll, pitch)
+            assert exact < 0.6 * min(off_pitch, off_focal), (index, side, exact, off_pitch, off_focal)
+
+
+def _panorama_mismatch(pano, image, cam, K, roll, pitch) -> float:
+    """Mean absolute grey-level difference between a crop and the panorama seen through K and gravity
+    (roll, pitch), at the best yaw: the up direction and the panorama's north are unknown to calib, so the
+    yaw is searched, with rays built only from K and gravity as the dataset states them."""
+    R_level_to_cam = camera_rotation(0.0, float(roll), float(pitch))
+    ys, xs = np.mgrid[8 : cam["height"] - 8 : 6, 8 : cam["width"] - 8 : 6]
+    rays = np.linalg.inv(K) @ np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)])
+    d = R_level_to_cam.T @ rays
+    d /= np.linalg.norm(d, axis=0)
+    lat = np.arcsin(d[2])
+    lon0 = np.arctan2(d[1], d[0])
+    rows = (0.5 - lat / np.pi) * pano.shape[0] - 0.5
+    best = np.inf
+    for shift in np.linspace(0, 1, 720, endpoint=False):
+        cols = ((0.5 - lon0 / (2 * np.pi) + shift) % 1.0) * pano.shape[1] - 0.5
+        ref = cv2.remap(
+            pano,
+            cols.astype(np.float32).reshape(1, -1),
+            rows.astype(np.float32).reshape(1, -1),
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_WRAP,
+        )[0]
+        best = min(best, float(np.abs(ref - image[ys.ravel(), xs.ravel()]).mean()))
+    return best
