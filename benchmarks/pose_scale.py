@@ -6,7 +6,7 @@ The head reads |T| as a weighted mean over the left view's stride-8 cells of (lo
 log-depth term), the parallax being the cell's soft-match displacement minus the learned displacement of a
 point at infinity (the rotation's share). Per pair with a baseline, this compares each part with the truth:
 
-- ``length``: |T̂| / |T| − 1, the head's baseline error ("translation / baseline" in models/MODEL_CARD.md);
+- ``length``: |T̂| / |T| − 1, the head's baseline error (the model card's pose-head figures);
 - ``parallax``: the head's vote-weighted parallax against the median true parallax of SIFT matches (kept
   within 1 px of the true epipolar lines; the true rotation's displacement taken off), both in units of
   half the network input's short side; and the slope of one against the other over the pairs (1 is ideal);

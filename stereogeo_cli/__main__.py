@@ -6,7 +6,7 @@ import os
 def run() -> None:
     # Before NumPy loads: its OpenBLAS would keep a thread per core for the small products of the refiner,
     # the fusion and the matcher, and those threads spin, taking CPU from the network and from the other
-    # batch workers (about 60 ms of CPU per 640x480 pair; README, "Speed"). Spawned batch workers
+    # batch workers (about 60 ms of CPU per 640x480 pair; docs/batch.md, "Speed"). Spawned batch workers
     # inherit the setting. An explicit OPENBLAS_NUM_THREADS wins.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from stereogeo_cli.cli import main

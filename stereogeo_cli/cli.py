@@ -16,7 +16,27 @@ from stereogeo_cli.errors import EXIT_INTERNAL, EXIT_PARTIAL_BATCH, StereoGeoErr
 
 
 class _Command(typer.core.TyperCommand):
-    """Help as a user reads it: flags without a type placeholder, arguments in the usage line as LEFT."""
+    """Every command's errors mapped in one place: a :class:`StereoGeoError` (bad input, a failed
+    calibration) becomes its one-line message and exit code, anything else one line and exit code 1, never
+    a traceback. And help as a user reads it: flags without a type placeholder, arguments as LEFT."""
+
+    def invoke(self, ctx):
+        import click
+
+        try:
+            return super().invoke(ctx)
+        except StereoGeoError as error:
+            raise fail(error) from None
+        except (
+            KeyboardInterrupt,
+            typer.Exit,
+            click.exceptions.Exit,
+            click.exceptions.Abort,
+            click.ClickException,
+        ):
+            raise
+        except Exception as error:  # noqa: BLE001 - any other failure is ours: one line, exit 1
+            raise _internal(error) from None
 
     def get_params(self, ctx):
         params = super().get_params(ctx)
@@ -144,34 +164,31 @@ def make_data(
     ] = None,
 ) -> None:
     """Render a synthetic stereo dataset with exact ground truth (K, R, T, gravity per camera)."""
-    try:
-        require_training_extra("make-data")
-        from stereogeo_cli.synth.cli_support import run_make_data
+    require_training_extra("make-data")
+    from stereogeo_cli.synth.cli_support import run_make_data
 
-        run_make_data(
-            out,
-            count=count,
-            seed=seed,
-            workers=workers,
-            size=size,
-            aspects=aspects,
-            portrait_share=portrait_share,
-            vfov=(vfov_min, vfov_max),
-            baseline=(baseline_min, baseline_max),
-            max_angle=max_angle,
-            outdoor_share=outdoor_share,
-            close_share=close_share,
-            panorama_share=panorama_share,
-            panorama_max_upsampling=panorama_max_upsampling,
-            augment=augment,
-            depth=depth,
-            textures=textures,
-            panoramas=panoramas,
-            preview=preview,
-            progress=sys.stderr.isatty() if progress is None else progress,
-        )
-    except StereoGeoError as error:
-        raise fail(error) from None
+    run_make_data(
+        out,
+        count=count,
+        seed=seed,
+        workers=workers,
+        size=size,
+        aspects=aspects,
+        portrait_share=portrait_share,
+        vfov=(vfov_min, vfov_max),
+        baseline=(baseline_min, baseline_max),
+        max_angle=max_angle,
+        outdoor_share=outdoor_share,
+        close_share=close_share,
+        panorama_share=panorama_share,
+        panorama_max_upsampling=panorama_max_upsampling,
+        augment=augment,
+        depth=depth,
+        textures=textures,
+        panoramas=panoramas,
+        preview=preview,
+        progress=sys.stderr.isatty() if progress is None else progress,
+    )
 
 
 def _internal(error: BaseException) -> typer.Exit:
@@ -359,45 +376,38 @@ def calibrate(
     threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core).")] = 0,
 ) -> None:
     """Calibrate a stereo camera from one image pair: focal lengths, gravity (roll, pitch), R and T."""
-    try:
-        for name, value in (
-            ("--baseline", baseline),
-            ("--focal-left", focal_left),
-            ("--focal-right", focal_right),
-        ):
-            if value is not None and not (value > 0 and np.isfinite(value)):
-                raise StereoGeoError(f"{name} must be a positive number, got {value}")
-        if focal_sigma is not None:
-            if not (0 < focal_sigma < 1):
-                raise StereoGeoError(f"--focal-sigma must be a fraction between 0 and 1, got {focal_sigma}")
-            if focal_left is None and focal_right is None:
-                raise StereoGeoError("--focal-sigma needs --focal-left or --focal-right")
-        if threads < 0:
-            raise StereoGeoError("--threads must be 0 or more")
-        names = _formats(formats)
-        if output is not None:
-            _check_output_folder(output)
-        if preview is not None:
-            _check_output_folder(preview.parent)
-        from stereogeo_cli.api import calibrate as calibrate_pair
-        from stereogeo_cli.io import load_image, write_calibration
+    for name, value in (
+        ("--baseline", baseline),
+        ("--focal-left", focal_left),
+        ("--focal-right", focal_right),
+    ):
+        if value is not None and not (value > 0 and np.isfinite(value)):
+            raise StereoGeoError(f"{name} must be a positive number, got {value}")
+    if focal_sigma is not None:
+        if not (0 < focal_sigma < 1):
+            raise StereoGeoError(f"--focal-sigma must be a fraction between 0 and 1, got {focal_sigma}")
+        if focal_left is None and focal_right is None:
+            raise StereoGeoError("--focal-sigma needs --focal-left or --focal-right")
+    if threads < 0:
+        raise StereoGeoError("--threads must be 0 or more")
+    names = _formats(formats)
+    if output is not None:
+        _check_output_folder(output)
+    if preview is not None:
+        _check_output_folder(preview.parent)
+    from stereogeo_cli.api import calibrate as calibrate_pair
+    from stereogeo_cli.io import load_image, write_calibration
 
-        result = calibrate_pair(
-            left, right, baseline=baseline, focal_left=focal_left, focal_right=focal_right,
-            focal_sigma=focal_sigma, pinhole=pinhole, lines=lines, exif=exif, model=model, threads=threads,
-        )  # fmt: skip
-        written = write_calibration(output, result.calibration, names) if output is not None else []
-        if preview is not None:
-            from stereogeo_cli.io.preview import write_preview
+    result = calibrate_pair(
+        left, right, baseline=baseline, focal_left=focal_left, focal_right=focal_right,
+        focal_sigma=focal_sigma, pinhole=pinhole, lines=lines, exif=exif, model=model, threads=threads,
+    )  # fmt: skip
+    written = write_calibration(output, result.calibration, names) if output is not None else []
+    if preview is not None:
+        from stereogeo_cli.io.preview import write_preview
 
-            images = (load_image(left), load_image(right))
-            written.append(write_preview(preview, *images, result.calibration))
-    except StereoGeoError as error:
-        raise fail(error) from None
-    except (KeyboardInterrupt, typer.Exit):
-        raise
-    except Exception as error:  # noqa: BLE001 - any other failure is ours: one line, exit 1
-        raise _internal(error) from None
+        images = (load_image(left), load_image(right))
+        written.append(write_preview(preview, *images, result.calibration))
     if json_out:
         from stereogeo_cli.io.report import report_json
 
@@ -471,26 +481,19 @@ def batch_calibrate(
     ] = False,
 ) -> None:
     """Calibrate every stereo pair of a folder with one network session; exit code 4 if any pair failed."""
-    try:
-        if baseline is not None and not (baseline > 0 and np.isfinite(baseline)):
-            raise StereoGeoError(f"--baseline must be a positive number, got {baseline}")
-        if threads < 0 or workers < 1:
-            raise StereoGeoError("--threads must be 0 or more and --workers 1 or more")
-        from stereogeo_cli.batch import parse_shard, run_batch
+    if baseline is not None and not (baseline > 0 and np.isfinite(baseline)):
+        raise StereoGeoError(f"--baseline must be a positive number, got {baseline}")
+    if threads < 0 or workers < 1:
+        raise StereoGeoError("--threads must be 0 or more and --workers 1 or more")
+    from stereogeo_cli.batch import parse_shard, run_batch
 
-        names, shard_spec = _formats(formats), parse_shard(shard) if shard is not None else None
-        _check_output_folder(output)
-        summary = run_batch(
-            folder, output, formats=names, baseline_m=baseline, model=model, threads=threads,
-            workers=workers, same_rig=same_rig, shard=shard_spec, progress=sys.stderr.isatty(),
-            pinhole=pinhole, lines=lines, exif=exif,
-        )  # fmt: skip
-    except StereoGeoError as error:
-        raise fail(error) from None
-    except (KeyboardInterrupt, typer.Exit):
-        raise
-    except Exception as error:  # noqa: BLE001
-        raise _internal(error) from None
+    names, shard_spec = _formats(formats), parse_shard(shard) if shard is not None else None
+    _check_output_folder(output)
+    summary = run_batch(
+        folder, output, formats=names, baseline_m=baseline, model=model, threads=threads,
+        workers=workers, same_rig=same_rig, shard=shard_spec, progress=sys.stderr.isatty(),
+        pinhole=pinhole, lines=lines, exif=exif,
+    )  # fmt: skip
     if json_out:
         sys.stdout.write(summary.json_text)
     else:
@@ -504,7 +507,7 @@ def batch_calibrate(
                 f"baseline {rig['baseline_m']:.4f} m"
             )
     if summary.rig_error is not None:
-        raise fail(summary.rig_error)
+        raise summary.rig_error
     if summary.failed:
         raise typer.Exit(code=EXIT_PARTIAL_BATCH)
 
@@ -580,34 +583,29 @@ def export_onnx_command(
     ] = None,
 ) -> None:
     """Export a checkpoint to one ONNX file (both views, any size), after checking it against torch."""
-    try:
-        require_training_extra("export-onnx")
-        from stereogeo_cli.network.export import export_onnx
-        from stereogeo_cli.refine import parse_sigma_inflation
+    require_training_extra("export-onnx")
+    from stereogeo_cli.network.export import export_onnx
+    from stereogeo_cli.refine import parse_sigma_inflation
 
-        factors = (("--sigma-inflation", sigma_inflation), ("--photo-sigma-scale", photo_sigma_scale))
-        for option, text in factors:
-            try:
-                parse_sigma_inflation(text, option.strip("-").replace("-", " "))
-            except ValueError as error:
-                raise StereoGeoError(f"{option}: {error}") from None
-        extra: dict[str, float | str] = {
-            "sigma_inflation": sigma_inflation.replace(" ", ""),
-            "photo_sigma_scale": photo_sigma_scale.replace(" ", ""),
-        }
-        if pose_sigmas is not None:
-            extra.update(_pose_sigmas(pose_sigmas))
-        if depth_sigma is not None:
-            if not (depth_sigma > 0 and math.isfinite(depth_sigma)):
-                raise StereoGeoError(f"--depth-sigma must be a positive fraction, got {depth_sigma}")
-            extra["depth_sigma_scale_rel"] = depth_sigma
-        result = export_onnx(
-            checkpoint, output, model_version=model_version, training_data=training_data, extra_metadata=extra
-        )
-    except StereoGeoError as error:
-        raise fail(error) from None
-    except Exception as error:  # noqa: BLE001
-        raise _internal(error) from None
+    factors = (("--sigma-inflation", sigma_inflation), ("--photo-sigma-scale", photo_sigma_scale))
+    for option, text in factors:
+        try:
+            parse_sigma_inflation(text, option.strip("-").replace("-", " "))
+        except ValueError as error:
+            raise StereoGeoError(f"{option}: {error}") from None
+    extra: dict[str, float | str] = {
+        "sigma_inflation": sigma_inflation.replace(" ", ""),
+        "photo_sigma_scale": photo_sigma_scale.replace(" ", ""),
+    }
+    if pose_sigmas is not None:
+        extra.update(_pose_sigmas(pose_sigmas))
+    if depth_sigma is not None:
+        if not (depth_sigma > 0 and math.isfinite(depth_sigma)):
+            raise StereoGeoError(f"--depth-sigma must be a positive fraction, got {depth_sigma}")
+        extra["depth_sigma_scale_rel"] = depth_sigma
+    result = export_onnx(
+        checkpoint, output, model_version=model_version, training_data=training_data, extra_metadata=extra
+    )
     worst = max(result["max_abs_error"].values())
     typer.echo(f"wrote {result['path']} (largest difference from torch {worst:.2e})")
 
@@ -637,31 +635,24 @@ def average_checkpoints_command(
 ) -> None:
     """Average the weights of checkpoints of one model (a model soup; with a model and its own fine-tune,
     WiSE-FT). Export the result with export-onnx."""
-    try:
-        require_training_extra("average-checkpoints")
-        from stereogeo_cli.network.checkpoint import average_checkpoints, write_checkpoint
+    require_training_extra("average-checkpoints")
+    from stereogeo_cli.network.checkpoint import average_checkpoints, write_checkpoint
 
-        if weights is None:
-            shares = [1.0] * len(checkpoints)
-        else:
-            try:
-                shares = [float(part) for part in weights.split(",")]
-            except ValueError:
-                raise StereoGeoError(
-                    f"--weights must be numbers separated by commas, got {weights!r}"
-                ) from None
-        if output.is_dir():
-            raise StereoGeoError(f"--output {output} is a folder; give the checkpoint file to write")
-        average = average_checkpoints(checkpoints, shares)
-        if model_version is not None:
-            average["model_version"] = model_version
-        if lineage:
-            average["lineage"] = f"{average['lineage']} ({lineage})"
-        write_checkpoint(output, average)
-    except StereoGeoError as error:
-        raise fail(error) from None
-    except Exception as error:  # noqa: BLE001
-        raise _internal(error) from None
+    if weights is None:
+        shares = [1.0] * len(checkpoints)
+    else:
+        try:
+            shares = [float(part) for part in weights.split(",")]
+        except ValueError:
+            raise StereoGeoError(f"--weights must be numbers separated by commas, got {weights!r}") from None
+    if output.is_dir():
+        raise StereoGeoError(f"--output {output} is a folder; give the checkpoint file to write")
+    average = average_checkpoints(checkpoints, shares)
+    if model_version is not None:
+        average["model_version"] = model_version
+    if lineage:
+        average["lineage"] = f"{average['lineage']} ({lineage})"
+    write_checkpoint(output, average)
     parts = ", ".join(f"{s['weight']:.3g} × {s['model_version']}" for s in average["averaged_from"])
     typer.echo(f"wrote {output} ({average.get('model_version', 'unnamed')}: {parts})")
 
@@ -673,7 +664,7 @@ def train(ctx: typer.Context) -> None:
     """Train the network (resumable; run under torchrun for several processes). --help lists the settings."""
     try:
         require_training_extra("train")
-    except StereoGeoError as error:
+    except StereoGeoError:
         if {"--help", "-h"} & set(ctx.args):
             typer.echo(
                 "Usage: stereogeo train [SETTINGS]\n\nTrain the network on synthetic renders "
@@ -681,7 +672,7 @@ def train(ctx: typer.Context) -> None:
                 f"training extra is installed: {INSTALL_TRAINING}"
             )
             raise typer.Exit() from None
-        raise fail(error) from None
+        raise
     from stereogeo_cli.network.train import main as train_main
 
     train_main(list(ctx.args))
@@ -709,29 +700,24 @@ def evaluate(
     """Calibrate every pair of a dataset with ground truth and report the papers' accuracy metrics."""
     import json
 
-    try:
-        from rich.progress import Progress
+    from rich.progress import Progress
 
-        from stereogeo_cli.evaluate import evaluate_dataset, read_dataset
-        from stereogeo_cli.pipeline import Calibrator
+    from stereogeo_cli.evaluate import evaluate_dataset, read_dataset
+    from stereogeo_cli.pipeline import Calibrator
 
-        if plot is not None:
-            _check_output_folder(plot.parent)
-        total = len(read_dataset(dataset))
-        calibrator = Calibrator(model, threads=threads)
-        with Progress(transient=True, disable=not sys.stderr.isatty(), console=_stderr_console()) as bar:
-            task = bar.add_task("evaluating", total=total)
-            results = evaluate_dataset(
-                dataset, calibrator, baselines=baselines, progress=lambda: bar.advance(task)
-            )
-        if plot is not None:
-            from stereogeo_cli.evaluate import plot_error_cdfs
+    if plot is not None:
+        _check_output_folder(plot.parent)
+    total = len(read_dataset(dataset))
+    calibrator = Calibrator(model, threads=threads)
+    with Progress(transient=True, disable=not sys.stderr.isatty(), console=_stderr_console()) as bar:
+        task = bar.add_task("evaluating", total=total)
+        results = evaluate_dataset(
+            dataset, calibrator, baselines=baselines, progress=lambda: bar.advance(task)
+        )
+    if plot is not None:
+        from stereogeo_cli.evaluate import plot_error_cdfs
 
-            plot_error_cdfs(results, plot)
-    except StereoGeoError as error:
-        raise fail(error) from None
-    except Exception as error:  # noqa: BLE001
-        raise _internal(error) from None
+        plot_error_cdfs(results, plot)
     if json_out:
         sys.stdout.write(json.dumps(results, indent=2, allow_nan=False, default=float) + "\n")
         return

@@ -50,12 +50,12 @@ default_conf = {
     # hold them equal. χ² with 1 dof would say 10 (p 1.5e-3), but real matches carry errors the camera model
     # does not (a lens fitted with one term, principal points off the centre) that a free ratio soaks up:
     # 30 kept the renders' medians (800 pairs) and held two real rigs equal that 10 did not
-    # (README, "Accuracy")
+    # (docs/refine.md, "The fusion's allowances")
     "equal_focal_max_gain": 30.0,
     # 1-sigma of a raw camera's principal point from the image centre, per axis, as a share of the image's
     # width / height: the pose's sigmas take it in (it moves R by the two cameras' difference over f). The
     # two raw rigs of the real test sets (the chessboard set, EuRoC) have theirs 1.4-2.9 % apart per axis
-    # (RMS 2.1 %, so 1.5 % each; README, "Accuracy").
+    # (RMS 2.1 %, so 1.5 % each; docs/refine.md, "The fusion's allowances").
     "principal_point_sigma": 0.015,
 }
 
