@@ -13,7 +13,9 @@ from stereogeo_cli.geometry import rotation_angle
 
 def test_api_result_equals_the_cli_report(example_pair, onnx_model):
     result = stereogeo_cli.calibrate(*example_pair, model=onnx_model, threads=1)
-    cli = CliRunner().invoke(app, ["calibrate", *map(str, example_pair), "--model", str(onnx_model), "--json"])
+    cli = CliRunner().invoke(
+        app, ["calibrate", *map(str, example_pair), "--model", str(onnx_model), "--json"]
+    )
     assert cli.exit_code == 0, cli.output
     report, api = json.loads(cli.stdout), result.report()
     for side in ("left", "right"):

@@ -316,3 +316,12 @@ def test_flip_averaging_is_mirror_symmetric(exported):
     plain = network.predict(left, right)
     assert not np.allclose(plain.left.latitude, out.left.latitude, atol=1e-5)  # flip did change something
     np.testing.assert_allclose(plain.translation, out.translation)  # the pose is the unmirrored run's
+
+
+def test_a_blurring_model_exports_its_blur(tmp_path):
+    torch.manual_seed(1)
+    model = StereoGeoNet({"pretrained": False, "input_blur_px": 1.5}).eval()
+    path = tmp_path / "blur.onnx"
+    report = export_onnx(model, path, model_version="blur", training_data="none", parity_sizes=((64, 96),))
+    assert max(report["max_abs_error"].values()) <= 1e-4
+    assert '"input_blur_px": 1.5' in FieldNetwork(path, threads=1).metadata["model_conf"]

@@ -283,3 +283,30 @@ def test_checkpoints_from_before_the_stride8_head_still_load(tmp_path):
     torch.save(checkpoint, path)
     model, _ = load_checkpoint(path)
     assert model.pose_head.match_stride == 16 and not model.pose_head.scale_votes
+
+
+def test_input_blur_is_a_normalised_gaussian_inside_the_graph():
+    """``input_blur_px``: the network sees the image blurred by a fixed Gaussian (its sum 1, so flat areas
+    keep their value), the same in training, export and inference; 0 leaves the image as it is."""
+    from stereogeo_cli.network.model import gaussian_kernel
+
+    kernel = gaussian_kernel(1.5)
+    assert kernel.shape == (1, 1, 11, 11) and float(kernel.sum()) == pytest.approx(1.0, abs=1e-6)
+    assert gaussian_kernel(0.0).numel() == 1
+    torch.manual_seed(0)
+    sharp = StereoGeoNet({"pretrained": False}).eval()
+    blurred = StereoGeoNet({"pretrained": False, "input_blur_px": 1.5}).eval()
+    blurred.load_state_dict(sharp.state_dict())  # the kernel is no weight: checkpoints stay as they were
+    assert "blur_kernel" not in sharp.state_dict()
+    image = torch.rand(1, 3, 64, 96)
+    flat = torch.full((1, 3, 64, 96), 0.4)
+    with torch.no_grad():
+        # a flat image is the same blurred or not; a noisy one is not
+        torch.testing.assert_close(blurred(flat, flat)["left_up"], sharp(flat, flat)["left_up"])
+        assert not torch.allclose(blurred(image, image)["left_up"], sharp(image, image)["left_up"])
+        import torch.nn.functional as F
+
+        by_hand = F.conv2d(
+            F.pad(image, (5, 5, 5, 5), mode="replicate"), kernel.expand(3, 1, -1, -1), groups=3
+        )
+        torch.testing.assert_close(blurred(image, image)["left_up"], sharp(by_hand, by_hand)["left_up"])

