@@ -180,8 +180,8 @@ def test_batch_and_same_rig_take_the_tags_and_no_exif_turns_them_off(example_pai
     assert prior["source"] == "exif" and reports[1]["focal_prior"][1]["tag_mm"] == round(f35)
     rig = json.loads((out / "rig" / "report.json").read_text())
     # the two (identical) pairs' fields combined, then the tag once: the fields' error on one camera is
-    # common to its pairs, so two pairs weigh as one (batch.FOCAL_COMMON_SHARE); the tag counted twice
-    # would give 0.82 of this
+    # common to its pairs, so two pairs weigh as one (FOCAL_COMMON_SHARE in batch/same_rig.py); the tag
+    # counted twice would give 0.82 of this
     fields_rel = prior["fields_sigma_px"] / prior["fields_focal_px"]
     once = (1 / fields_rel**2 + 1 / (prior["sigma_px"] / prior["focal_px"]) ** 2) ** -0.5
     assert rig["left"]["sigma"]["focal_px"] / rig["left"]["focal_px"] == pytest.approx(once, rel=0.02)

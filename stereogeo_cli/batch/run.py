@@ -1,0 +1,427 @@
+"""Running ``batch-calibrate``: each pair in a worker process (one network session each), progress, the
+per-pair results and the summary files."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import multiprocessing
+import os
+import sys
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stereogeo_cli.batch.discovery import PairEntry, discover_pairs, select_shard
+from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.pipeline import calibrator_conf
+
+RIG_FOLDER = "rig"  # --same-rig: the joint calibration's folder in OUT
+CSV_COLUMNS = (
+    "name", "status", "error",
+    "left_focal_px", "left_vfov_deg", "left_roll_deg", "left_pitch_deg",
+    "right_focal_px", "right_vfov_deg", "right_roll_deg", "right_pitch_deg",
+    "rotation_deg", "baseline_m", "matches", "inliers", "time_ms", "left_file", "right_file",
+)  # fmt: skip
+NUMERIC_COLUMNS = CSV_COLUMNS[3:16]
+
+
+@dataclass(frozen=True)
+class PairJob:
+    """What to do with each pair: the same for every pair of a pass."""
+
+    out_dir: Path | None  # per-pair files go to out_dir/<name>/; None: write nothing
+    formats: tuple[str, ...]
+    baseline_m: float | None
+    model: Path | None
+    threads: int
+    focal_left: float | None = None
+    focal_right: float | None = None
+    keep_evidence: bool = False  # keep what --same-rig needs (focal, gravity, pose, matches)
+    pinhole: bool = False  # --pinhole: fit no lens distortion
+    lines: bool = True  # --no-lines: gravity from the fields alone, no vertical line segments
+    exif: bool = True  # --no-exif: no EXIF focal length as a prior
+
+
+@dataclass
+class RigEvidence:
+    """What one pair tells about its rig (pixels, radians, unit vectors; matches [N x 2] pixels)."""
+
+    size_left: tuple[int, int]
+    size_right: tuple[int, int]
+    focal: tuple[float, float]  # left, right
+    focal_sigma: tuple[float, float]
+    gravity_left: np.ndarray
+    gravity_right: np.ndarray
+    R: np.ndarray
+    t_direction: np.ndarray
+    pose_source: str
+    baseline_m: float
+    matches_left: np.ndarray
+    matches_right: np.ndarray
+    distortion: tuple[float, float] = (0.0, 0.0)  # division-model k per camera, for the refined focal
+    # per camera the EXIF (or given) prior (focal, sigma) in pixels that the pair's focal took in, or None;
+    # where there is one, ``focal`` and ``focal_sigma`` are the fields' own, so that --same-rig counts the
+    # prior once (a focal length combined with the image's straight edges has none: pipeline._with_manhattan)
+    focal_prior: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None)
+
+
+@dataclass
+class PairOutcome:
+    """One pair's result: ``status`` "ok" with its JSON ``report``, or "failed" with ``error``."""
+
+    name: str
+    left: Path | None
+    right: Path | None
+    status: str
+    error: str = ""
+    report: dict[str, Any] | None = None
+    time_ms: float = 0.0
+    evidence: RigEvidence | None = None
+    fatal: bool = False  # the failure is not the pair's (e.g. the model cannot be loaded): stop the batch
+
+    def row(self) -> dict[str, Any]:
+        """The pair's summary.csv row (None for unknown values)."""
+        r = self.report or {}
+        cams = {side: r.get(side) or {} for side in ("left", "right")}
+        row: dict[str, Any] = {"name": self.name, "status": self.status, "error": self.error}
+        for side, cam in cams.items():
+            for key in ("focal_px", "vfov_deg", "roll_deg", "pitch_deg"):
+                row[f"{side}_{key}"] = cam.get(key)
+        row["rotation_deg"] = (r.get("pose") or {}).get("rotation_deg")
+        row["baseline_m"] = r.get("baseline_m")
+        row["matches"] = (r.get("matches") or {}).get("found")
+        row["inliers"] = (r.get("matches") or {}).get("inliers")
+        row["time_ms"] = round(self.time_ms, 1) if self.status == "ok" else None
+        row["left_file"] = str(self.left) if self.left else ""
+        row["right_file"] = str(self.right) if self.right else ""
+        return row
+
+
+def _evidence(result) -> RigEvidence:
+    matches = result.matches
+    empty = np.zeros((0, 2))
+    priors = result.calibration.extra_report.get("focal_prior") or [None, None]
+    focal, sigma, prior = [], [], []
+    for fit, entry in zip((result.left, result.right), priors, strict=True):
+        fields_sigma = None if entry is None else entry.get("fields_sigma_px")
+        # a focal length combined with its straight edges' is the pair's own evidence, as the fields' alone is
+        # (each pair's edges are another scene's; an EXIF prior is one camera's tags, counted once)
+        if entry is None or fields_sigma is None or entry.get("source") == "lines":
+            focal.append(fit.focal_px)
+            sigma.append(fit.sigma["focal_px"])
+            prior.append(None)
+        else:  # the fields' own reading, scaled by what the matches did to the combined focal
+            scale = fit.focal_px / entry["combined_focal_px"]
+            focal.append(entry["fields_focal_px"] * scale)
+            sigma.append(fields_sigma * scale)
+            prior.append((entry["focal_px"], entry["sigma_px"]))
+    return RigEvidence(
+        size_left=(result.left.width, result.left.height),
+        size_right=(result.right.width, result.right.height),
+        focal=(focal[0], focal[1]),
+        focal_sigma=(sigma[0], sigma[1]),
+        focal_prior=(prior[0], prior[1]),
+        gravity_left=np.asarray(result.left.gravity_up, dtype=float),
+        gravity_right=np.asarray(result.right.gravity_up, dtype=float),
+        R=np.asarray(result.pose.R, dtype=float),
+        t_direction=np.asarray(result.pose.t_direction, dtype=float),
+        pose_source=result.pose.source,
+        baseline_m=result.calibration.baseline_m,
+        matches_left=empty if matches is None else np.asarray(matches.left, dtype=float),
+        matches_right=empty if matches is None else np.asarray(matches.right, dtype=float),
+        distortion=tuple(result.pose.distortion),
+    )
+
+
+def calibrate_pair(calibrator, entry: PairEntry, job: PairJob) -> PairOutcome:
+    """Load, calibrate and (if ``job.out_dir``) write one pair; any failure becomes a "failed" outcome."""
+    from stereogeo_cli.io import load_pair, write_calibration
+    from stereogeo_cli.io.exif import exif_focals
+
+    start = time.perf_counter()
+    outcome = PairOutcome(entry.name, entry.left, entry.right, "failed")
+    try:
+        left, right = load_pair(entry.left, entry.right)
+        result = calibrator.calibrate(
+            left, right, baseline_m=job.baseline_m, focal_left=job.focal_left, focal_right=job.focal_right,
+            exif=exif_focals((entry.left, entry.right), (left, right)) if job.exif else None,
+        )  # fmt: skip
+        if job.out_dir is not None:
+            write_calibration(job.out_dir / entry.name, result.calibration, job.formats)
+        outcome.status, outcome.report = "ok", _json_safe(result.report())
+        if job.keep_evidence:
+            outcome.evidence = _evidence(result)
+    except StereoGeoError as error:
+        outcome.error = str(error)
+    except Exception as error:  # noqa: BLE001 - one pair's bug must not stop the batch
+        first = str(error).strip().splitlines()[0] if str(error).strip() else ""
+        outcome.error = f"internal error: {type(error).__name__}{': ' + first if first else ''}"
+    outcome.time_ms = (time.perf_counter() - start) * 1e3
+    return outcome
+
+
+_WORKER: dict[str, Any] = {}  # the process's Calibrator in a worker process
+
+
+def _init_worker(threads: int) -> None:
+    import cv2
+
+    cv2.setNumThreads(max(threads, 1))
+
+
+def _worker_task(entry: PairEntry, job: PairJob) -> PairOutcome:
+    key = (job.model, job.threads, job.pinhole, job.lines)
+    if _WORKER.get("key") != key:
+        from stereogeo_cli.pipeline import Calibrator
+
+        try:
+            calibrator = Calibrator(
+                job.model, threads=job.threads, conf=calibrator_conf(job.pinhole, job.lines)
+            )
+            _WORKER["calibrator"], _WORKER["key"] = calibrator, key
+        except StereoGeoError as error:
+            return PairOutcome(entry.name, entry.left, entry.right, "failed", str(error), fatal=True)
+    return calibrate_pair(_WORKER["calibrator"], entry, job)
+
+
+class _Progress:
+    """Reports finished pairs on stderr: a Rich progress bar on a terminal, else one plain line per pair."""
+
+    def __init__(self, rich: bool):
+        self.rich = rich
+        self.bar = None
+
+    def __enter__(self) -> _Progress:
+        if self.rich:
+            from rich.console import Console
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+            self.bar = Progress(
+                TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                console=Console(stderr=True), transient=False,
+            )  # fmt: skip
+            self.bar.__enter__()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(*exc)
+
+    def stage(self, description: str, total: int) -> None:
+        self.done, self.total, self.description = 0, total, description
+        if self.bar is not None:
+            self.task = self.bar.add_task(description, total=total)
+
+    def line(self, text: str) -> None:
+        if self.bar is not None:
+            self.bar.console.print(text, markup=False, highlight=False)
+        else:
+            print(text, file=sys.stderr, flush=True)
+
+    def finished(self, outcome: PairOutcome) -> None:
+        self.done += 1
+        if outcome.status != "ok":
+            self.line(f"{self.description}: {outcome.name}: failed: {outcome.error}")
+        elif self.bar is None:
+            done = f"{self.done}/{self.total}"
+            self.line(f"{self.description}: {done} {outcome.name}: ok ({outcome.time_ms:.0f} ms)")
+        if self.bar is not None:
+            self.bar.advance(self.task)
+
+
+def _run_pass(entries: list[PairEntry], job: PairJob, workers: int, calibrator, progress: _Progress):
+    """Outcomes of ``entries`` in their order, whatever the order in which they finish."""
+    outcomes: list[PairOutcome | None] = [None] * len(entries)
+    if workers <= 1 or len(entries) <= 1:
+        for i, entry in enumerate(entries):
+            outcomes[i] = calibrate_pair(calibrator(), entry, job)
+            progress.finished(outcomes[i])
+        return outcomes
+    total = job.threads if job.threads > 0 else (os.cpu_count() or 1)
+    per_worker = max(1, total // workers)
+    job = PairJob(**{**job.__dict__, "threads": per_worker})
+    # spawn: a fresh interpreter per worker (no forked ONNX Runtime / OpenCV thread pools)
+    with ProcessPoolExecutor(
+        max_workers=min(workers, len(entries)), mp_context=multiprocessing.get_context("spawn"),
+        initializer=_init_worker, initargs=(per_worker,),
+    ) as pool:  # fmt: skip
+        futures = {pool.submit(_worker_task, entry, job): i for i, entry in enumerate(entries)}
+        try:
+            for future in as_completed(futures):
+                outcome = future.result()
+                if outcome.fatal:
+                    raise StereoGeoError(outcome.error)
+                outcomes[futures[future]] = outcome
+                progress.finished(outcome)
+        except BaseException:
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+    return outcomes
+
+
+# ------------------------------------------------------------------------------------------ same-rig maths
+
+
+@dataclass
+class BatchSummary:
+    """What a batch did: outcomes in sorted order, the files written, and the same-rig result or error."""
+
+    outcomes: list[PairOutcome]
+    written: list[Path] = field(default_factory=list)
+    rig: Any = None  # the joint StereoCalibration of --same-rig
+    rig_error: StereoGeoError | None = None
+    json_text: str = ""
+
+    @property
+    def failed(self) -> int:
+        return sum(o.status != "ok" for o in self.outcomes)
+
+
+def _finite(value: Any) -> float | None:
+    return float(value) if value is not None and math.isfinite(float(value)) else None
+
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, float | np.floating):
+        return _finite(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def medians(outcomes: Sequence[PairOutcome]) -> dict[str, float | None]:
+    """Median of each numeric summary column over the pairs that succeeded (None when there is none)."""
+    rows = [o.row() for o in outcomes if o.status == "ok"]
+    result = {}
+    for column in NUMERIC_COLUMNS:
+        values = [float(r[column]) for r in rows if r[column] is not None]
+        result[column] = float(np.median(values)) if values else None
+    return result
+
+
+def summary_files(
+    outcomes: Sequence[PairOutcome], folder: Path, shard: tuple[int, int] | None, rig: dict | None
+) -> dict[str, str]:
+    """``{file name: text}`` of summary.csv and summary.json (``summary-shard-i-of-n.*`` for a shard)."""
+    stem = "summary" if shard is None else f"summary-shard-{shard[0]}-of-{shard[1]}"
+    text = io.StringIO()
+    writer = csv.DictWriter(text, CSV_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for outcome in outcomes:
+        writer.writerow({k: "" if v is None else v for k, v in outcome.row().items()})
+    ok = sum(o.status == "ok" for o in outcomes)
+    summary = {
+        "folder": str(folder),
+        "shard": None if shard is None else f"{shard[0]}/{shard[1]}",
+        "counts": {"pairs": len(outcomes), "ok": ok, "failed": len(outcomes) - ok},
+        "medians": medians(outcomes),
+        "pairs": [
+            {
+                "name": o.name,
+                "status": o.status,
+                "error": o.error or None,
+                "left_file": str(o.left) if o.left else None,
+                "right_file": str(o.right) if o.right else None,
+                "time_ms": round(o.time_ms, 1) if o.status == "ok" else None,
+                "report": o.report,
+            }
+            for o in outcomes
+        ],
+    }
+    if rig is not None:
+        summary["rig"] = rig
+    return {f"{stem}.csv": text.getvalue(), f"{stem}.json": json.dumps(_json_safe(summary), indent=2) + "\n"}
+
+
+def run_batch(
+    folder: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    formats: tuple[str, ...] = ("opencv", "json"),
+    baseline_m: float | None = None,
+    model: Path | None = None,
+    threads: int = 0,
+    workers: int = 1,
+    same_rig: bool = False,
+    shard: tuple[int, int] | None = None,
+    progress: bool = False,
+    pinhole: bool = False,
+    lines: bool = True,
+    exif: bool = True,
+) -> BatchSummary:
+    """Calibrate every pair of ``folder`` into ``out_dir/<name>/``, write the summaries (and ``rig/``).
+
+    Args:
+        formats: output formats of each pair (and of the joint calibration).
+        workers: processes; each has its own network session with ``threads // workers`` threads.
+        progress: a Rich progress bar on stderr (else one plain line per pair there).
+        pinhole: the images have no lens distortion (rectified or undistorted): none is fitted.
+        lines: fit each camera's gravity to the image's vertical line segments too (docs/refine.md).
+        exif: take each photo's EXIF focal length as a prior (stereogeo_cli/io/exif.py).
+    Raises:
+        StereoGeoError: no pairs (exit code 2), or a model that cannot be loaded. A pair that fails does
+        not raise: its outcome is "failed". A failed joint calibration is returned in ``rig_error``.
+    """
+    folder, out_dir = Path(folder), Path(out_dir)
+    entries = select_shard(discover_pairs(folder), shard)
+    if same_rig and any(e.name == RIG_FOLDER for e in entries):
+        raise StereoGeoError(f"--same-rig writes {out_dir / RIG_FOLDER}/, but a pair is named {RIG_FOLDER!r}")
+    calibrator_cache: list = []
+
+    def calibrator():  # the in-process session, made once (and only when needed)
+        if not calibrator_cache:
+            from stereogeo_cli.pipeline import Calibrator
+
+            calibrator_cache.append(Calibrator(model, threads=threads, conf=calibrator_conf(pinhole, lines)))
+        return calibrator_cache[0]
+
+    if workers <= 1 and any(e.problem is None for e in entries):
+        calibrator()  # a bad model fails here, before any pair
+    job = PairJob(
+        out_dir, formats, baseline_m, model, threads, keep_evidence=same_rig, pinhole=pinhole, lines=lines,
+        exif=exif,
+    )  # fmt: skip
+    pairs = [e for e in entries if e.problem is None]
+    outcomes_by_name: dict[str, PairOutcome] = {}
+    with _Progress(progress) as bar:
+        for e in entries:
+            if e.problem is not None:
+                bar.line(f"unmatched: {e.problem}")
+                outcomes_by_name[e.name] = PairOutcome(e.name, e.left, e.right, "failed", e.problem)
+        bar.stage("calibrating", len(pairs))
+        for outcome in _run_pass(pairs, job, workers, calibrator, bar):
+            outcomes_by_name[outcome.name] = outcome
+        outcomes = [outcomes_by_name[e.name] for e in entries]
+        summary = BatchSummary(outcomes)
+        if same_rig:
+            try:
+                from stereogeo_cli.batch.same_rig import same_rig_calibration
+
+                summary.rig = same_rig_calibration(outcomes, job, workers, calibrator, bar, baseline_m)
+            except StereoGeoError as error:
+                summary.rig_error = error
+    from stereogeo_cli.io import write_calibration
+    from stereogeo_cli.io.atomic import write_files_atomically
+
+    rig_entry = None
+    if summary.rig is not None:
+        summary.written += write_calibration(out_dir / RIG_FOLDER, summary.rig, formats)
+        rig_entry = {"folder": RIG_FOLDER, "report": _json_safe(summary.rig.to_report())}
+    elif summary.rig_error is not None:
+        rig_entry = {"folder": None, "error": str(summary.rig_error)}
+    files = summary_files(outcomes, folder, shard, rig_entry)
+    summary.json_text = files[next(k for k in files if k.endswith(".json"))]
+    summary.written += write_files_atomically(out_dir, files)
+    return summary
