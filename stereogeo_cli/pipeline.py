@@ -96,6 +96,44 @@ class CalibrationResult:
         """The JSON report (docs/io.md), with the pose's provenance and any warnings."""
         return self.calibration.to_report()
 
+    def with_warning(self, note: str) -> CalibrationResult:
+        """This result with one more warning (in ``warnings``, the report's ``warnings`` and its notes)."""
+        c = self.calibration
+        extra = {**c.extra_report, "warnings": [*c.extra_report.get("warnings", []), note]}
+        notes = "; ".join(n for n in (c.notes, note) if n)
+        calibration = replace(c, notes=notes, extra_report=extra)
+        return replace(self, calibration=calibration, warnings=[*self.warnings, note])
+
+    def mirrored(self) -> CalibrationResult:
+        """The same rig with the two cameras' roles swapped: each camera keeps its own intrinsics, gravity
+        and sigmas, and ``X_right = R @ X_left + T`` becomes ``X_left = Rᵀ @ X_right - Rᵀ T``."""
+        c, pose = self.calibration, self.pose
+        R = c.R.T
+        per_camera = ("focal_prior", "vertical_segments")
+        extra = {
+            k: (list(v)[::-1] if k in per_camera and v is not None else v) for k, v in c.extra_report.items()
+        }
+        if isinstance(extra.get("pose"), dict):
+            extra["pose"] = {
+                k: (list(v)[::-1] if isinstance(v, list | tuple) and len(v) == 2 else v)
+                for k, v in extra["pose"].items()
+            }
+        calibration = replace(
+            c, K_left=c.K_right, K_right=c.K_left, image_size_left=c.image_size_right,
+            image_size_right=c.image_size_left, R=R, T=-R @ c.T, D_left=c.D_right, D_right=c.D_left,
+            gravity_left=c.gravity_right, gravity_right=c.gravity_left, sigma_left=c.sigma_right,
+            sigma_right=c.sigma_left, extra_report=extra,
+        )  # fmt: skip
+        mirrored_pose = replace(
+            pose, R=pose.R.T, t_direction=-pose.R.T @ pose.t_direction, focal_scale=pose.focal_scale[::-1],
+            distortion=pose.distortion[::-1], sigma_distortion=pose.sigma_distortion[::-1],
+        )  # fmt: skip
+        matches = None if self.matches is None else Matches(self.matches.right, self.matches.left)
+        return replace(
+            self, calibration=calibration, left=self.right, right=self.left, pose=mirrored_pose,
+            matches=matches,
+        )  # fmt: skip
+
 
 def _timed(function, *args):
     """(function(*args), its wall time in milliseconds)."""
@@ -462,7 +500,38 @@ class Calibrator:
                 length wins); a reason becomes a warning.
         Raises:
             CalibrationFailed: the images are blank or the fields too ambiguous to trust.
+
+        A pair whose right camera turns out to sit to the left of the left one (T_x > 0: the files were
+        most likely swapped) is calibrated again in the other order and the mirror of that is returned,
+        with a warning: the pose head learnt rigs with the right camera on the right, and its read of a
+        swapped pair is worse, so a pair and its swap give the same rig.
         """
+        exif = exif or ((None, None), (None, None))
+        result = self._calibrate_in_order(
+            left, right, baseline_m=baseline_m, focal_left=focal_left, focal_right=focal_right, exif=exif
+        )
+        if result.calibration.T[0] <= 0:
+            return result
+        swapped = self._calibrate_in_order(
+            right, left, baseline_m=baseline_m, focal_left=focal_right, focal_right=focal_left,
+            exif=(exif[1], exif[0]),
+        )  # fmt: skip
+        note = "the right camera sits to the left of the left one (T_x > 0): were the two images swapped?"
+        if swapped.calibration.T[0] >= 0:  # neither order puts the right camera on the right
+            return result.with_warning(note)
+        return swapped.mirrored().with_warning(note)
+
+    def _calibrate_in_order(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        *,
+        baseline_m: float | None,
+        focal_left: float | None,
+        focal_right: float | None,
+        exif: tuple[tuple[FocalPrior | None, str | None], tuple[FocalPrior | None, str | None]],
+    ) -> CalibrationResult:
+        """:meth:`calibrate` with the images in the order given."""
         timing: dict[str, float] = {}
         start = time.perf_counter()
         check_pair(left, right)
@@ -488,7 +557,6 @@ class Calibrator:
                     f"(mean field confidence {confidence:.3f})"
                 )
         tick = time.perf_counter()
-        exif = exif or ((None, None), (None, None))
         priors: list[dict | None] = [None, None]
         fits, held = [], []  # held: the focal lengths held fixed (given without a sigma)
         for side, (name, view, known) in enumerate(
@@ -624,10 +692,6 @@ class Calibrator:
                 baseline = 1.0
                 warnings.append("the pose head gave no usable metric scale: T has unit length")
         T = pose.translation(baseline)
-        if T[0] > 0:
-            warnings.append(
-                "the right camera sits to the left of the left one (T_x > 0): were the two images swapped?"
-            )
         timing["total"] = (time.perf_counter() - start) * 1e3
         calibration = StereoCalibration(
             K_left=K_left, K_right=K_right,

@@ -166,8 +166,7 @@ class FieldNetwork:
         return np.ascontiguousarray(tensor), rc
 
     def predict(self, left_rgb: np.ndarray, right_rgb: np.ndarray, flip: bool = False) -> NetworkOutput:
-        """Fields of both views and the relative pose of a stereo pair (the pose head read in both orders:
-        :func:`symmetric_pose`).
+        """Fields of both views and the relative pose of a stereo pair.
 
         Args:
             left_rgb, right_rgb: RGB images [H x W x 3] uint8; the two sizes may differ.
@@ -176,22 +175,8 @@ class FieldNetwork:
         """
         left, rc_left = self.prepare(left_rgb)
         right, rc_right = self.prepare(right_rgb)
-        if left.shape == right.shape:  # both orders in one batch
-            values = self.session.run(
-                self.output_names,
-                {"left": np.concatenate([left, right]), "right": np.concatenate([right, left])},
-            )
-            batch = dict(zip(self.output_names, values, strict=True))
-            out = {name: value[:1] for name, value in batch.items()}
-            swapped = {name: value[1:] for name, value in batch.items()}
-        else:
-            values = self.session.run(self.output_names, {"left": left, "right": right})
-            out = dict(zip(self.output_names, values, strict=True))
-            values = self.session.run(["quaternion", "translation"], {"left": right, "right": left})
-            swapped = dict(zip(["quaternion", "translation"], values, strict=True))
-        quaternion, translation = symmetric_pose(
-            out["quaternion"][0], out["translation"][0], swapped["quaternion"][0], swapped["translation"][0]
-        )
+        values = self.session.run(self.output_names, {"left": left, "right": right})
+        out = dict(zip(self.output_names, values, strict=True))
         if flip:
             mirrored = self.session.run(
                 self.output_names,
@@ -216,36 +201,12 @@ class FieldNetwork:
                 depth=out[f"{view}_depth"][0] if f"{view}_depth" in out else None,
                 depth_spread=out[f"{view}_depth_spread"][0] if f"{view}_depth_spread" in out else None,
             )
-        return NetworkOutput(views["left"], views["right"], quaternion, translation)
-
-
-def symmetric_pose(
-    quaternion: np.ndarray,
-    translation: np.ndarray,
-    swapped_quaternion: np.ndarray,
-    swapped_translation: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The pose head's reads of (left, right) and of (right, left), mapped to one relative pose
-    (quaternion (w, x, y, z) with w >= 0, T in metres) that swapping the images mirrors exactly.
-
-    The head is not symmetric by construction: a pair and its swap can read baselines 40 % apart. The
-    swapped read's inverse is averaged with the direct one: the rotation as a quaternion mean, the
-    direction of T as a vector mean, its length as the mean of the two lengths."""
-    q = np.asarray(quaternion, dtype=float)
-    q_back = np.asarray(swapped_quaternion, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
-    q_back = q_back if float(q @ q_back) >= 0 else -q_back
-    mean = (q / np.linalg.norm(q) + q_back / np.linalg.norm(q_back)) / 2
-    mean = mean / np.linalg.norm(mean)
-    mean = mean if mean[0] >= 0 else -mean
-    t = np.asarray(translation, dtype=float)
-    t_swapped = np.asarray(swapped_translation, dtype=float)
-    t_back = -quaternion_to_rotation(swapped_quaternion).T @ t_swapped
-    direction = t + t_back
-    norm = float(np.linalg.norm(direction))
-    length = 0.5 * (float(np.linalg.norm(t)) + float(np.linalg.norm(t_swapped)))
-    if norm < 1e-12:
-        return mean, t
-    return mean, direction / norm * length
+        return NetworkOutput(
+            views["left"],
+            views["right"],
+            out["quaternion"][0].astype(float),
+            out["translation"][0].astype(float),
+        )
 
 
 def average_with_mirrored(
