@@ -14,6 +14,14 @@ import typer.core
 from stereogeo_cli import __version__
 from stereogeo_cli.errors import EXIT_INTERNAL, EXIT_PARTIAL_BATCH, StereoGeoError
 
+# Exits and usage errors that Typer turns into exit codes itself (its click may be vendored or the package)
+_PASS_THROUGH = (
+    KeyboardInterrupt,
+    typer.Exit,
+    typer.Abort,
+    *{cls for cls in typer.BadParameter.__mro__ if cls.__name__ == "ClickException"},
+)
+
 
 class _Command(typer.core.TyperCommand):
     """Every command's errors mapped in one place: a :class:`StereoGeoError` (bad input, a failed
@@ -21,20 +29,12 @@ class _Command(typer.core.TyperCommand):
     a traceback. And help as a user reads it: flags without a type placeholder, arguments as LEFT."""
 
     def invoke(self, ctx):
-        import click
-
         try:
             return super().invoke(ctx)
         except StereoGeoError as error:
             raise fail(error) from None
-        except (
-            KeyboardInterrupt,
-            typer.Exit,
-            click.exceptions.Exit,
-            click.exceptions.Abort,
-            click.ClickException,
-        ):
-            raise
+        except _PASS_THROUGH:
+            raise  # an exit code chosen on purpose, or a usage error Typer reports itself
         except Exception as error:  # noqa: BLE001 - any other failure is ours: one line, exit 1
             raise _internal(error) from None
 

@@ -46,6 +46,12 @@ default_conf = {
     # an EXIF focal length (a prior, combined with the fields' by their sigmas) whose fields read it this many
     # combined sigmas away gets a warning: the photo may be cropped or digitally zoomed
     "exif_warn_sigmas": 4.0,
+    # the relative 1-sigma of the network's bias on a camera it has not seen, added in quadrature to a
+    # reported focal length read from the images (the fields, alone or with the vanishing points): the
+    # fields' own sigma describes the scatter over one image's cells, not how wrong the network can be on a
+    # kind of camera, and that error is common to every photo of it (docs/refine.md, "Uncertainty of the
+    # focal length on photographs"); 0: none
+    "camera_bias_sigma": 0.25,
     # Also run the mirrored pair and average the fields (twice the network time). Off: it lowers the mean
     # errors on renders but raises the median roll error and the real-image vFoV errors (docs/network.md).
     "flip": False,
@@ -255,13 +261,16 @@ class Calibrator:
         of real panoramas, so that they hold 68 % of the errors on photographs. The estimates do not change.
         A focal length that was given or had an EXIF prior keeps its sigma: that scale was not measured with
         one. ``spread_rel``: a relative spread added in quadrature to the focal length's (two reads that
-        disagree: ``_lines_spread``)."""
+        disagree: ``_lines_spread``), as is the conf's ``camera_bias_sigma`` for a focal length read from the
+        images."""
         roll, pitch, vfov = self.photo_sigma_scale
         sigma = {**fit.sigma, "roll_deg": fit.sigma["roll_deg"] * roll}
         sigma["pitch_deg"] = fit.sigma["pitch_deg"] * pitch
         if focal_from_fields:
             sigma.update(focal_px=fit.sigma["focal_px"] * vfov, vfov_deg=fit.sigma["vfov_deg"] * vfov)
         relative = sigma["focal_px"] / fit.focal_px
+        if focal_from_fields:
+            spread_rel = math.hypot(spread_rel, self.conf["camera_bias_sigma"])
         if spread_rel > 0 and math.isfinite(relative) and relative > 0:
             widen = math.hypot(relative, spread_rel) / relative
             sigma.update(focal_px=sigma["focal_px"] * widen, vfov_deg=sigma["vfov_deg"] * widen)

@@ -9,8 +9,8 @@ from stereogeo_cli.pipeline import Calibrator
 
 def test_the_photo_sigma_scale_widens_the_reported_sigmas_only(onnx_model, example_pair):
     left, right = (load_image(path) for path in example_pair)
-    # the straight edges' spread widens the reported focal sigma too (tests/test_manhattan.py): not here
-    conf = {"manhattan": {"report_spread": 0.0}}
+    # the straight edges' spread and the camera bias widen the reported focal sigma too: not here
+    conf = {"manhattan": {"report_spread": 0.0}, "camera_bias_sigma": 0.0}
     plain, photo = Calibrator(onnx_model, threads=1, conf=conf), Calibrator(onnx_model, threads=1, conf=conf)
     plain.photo_sigma_scale, photo.photo_sigma_scale = (1.0, 1.0, 1.0), (1.5, 1.2, 1.25)
     factors = {"roll_deg": 1.5, "pitch_deg": 1.2, "vfov_deg": 1.25, "focal_px": 1.25}
@@ -38,3 +38,26 @@ def test_the_photo_sigma_scale_widens_the_reported_sigmas_only(onnx_model, examp
     assert b.calibration.sigma_right["vfov_deg"] == pytest.approx(
         1.25 * a.calibration.sigma_right["vfov_deg"]
     )
+
+
+def test_a_focal_length_read_from_the_images_reports_the_networks_camera_bias(onnx_model, example_pair):
+    """The network's error on one kind of camera is common to its photos: the reported focal sigma of a
+    focal length the images gave holds it in quadrature; a given one does not, and no estimate moves."""
+    left, right = (load_image(path) for path in example_pair)
+    conf = {"manhattan": {"report_spread": 0.0}}
+    without = Calibrator(onnx_model, threads=1, conf={**conf, "camera_bias_sigma": 0.0})
+    with_bias = Calibrator(onnx_model, threads=1, conf={**conf, "camera_bias_sigma": 0.25})
+    a, b = without.calibrate(left, right), with_bias.calibrate(left, right)
+    np.testing.assert_array_equal(a.calibration.K_left, b.calibration.K_left)
+    ca, cb = a.calibration, b.calibration
+    for sa, sb, K in (
+        (ca.sigma_left, cb.sigma_left, ca.K_left),
+        (ca.sigma_right, cb.sigma_right, ca.K_right),
+    ):
+        focal = K[0, 0]
+        assert sb["focal_px"] / focal == pytest.approx(np.hypot(sa["focal_px"] / focal, 0.25), rel=1e-9)
+        assert sb["vfov_deg"] / sa["vfov_deg"] == pytest.approx(sb["focal_px"] / sa["focal_px"], rel=1e-9)
+        assert sb["roll_deg"] == sa["roll_deg"]
+    given_a = without.calibrate(left, right, focal_left=400.0)
+    given_b = with_bias.calibrate(left, right, focal_left=400.0)
+    assert given_b.calibration.sigma_left["focal_px"] == given_a.calibration.sigma_left["focal_px"]

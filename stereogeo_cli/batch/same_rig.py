@@ -137,12 +137,15 @@ def calibrate_rig(
     model,
     pinhole: bool = False,
     focal_sigma_scale: tuple[float, float] = (1.0, 1.0),
+    focal_bias_sigma: tuple[float, float] = (0.0, 0.0),
 ):
     """The joint calibration (a StereoCalibration) from pass-1 and pass-2 outcomes of the same pairs.
 
     ``focals``: the (left, right) :class:`FocalEstimate`; ``model``: (file name, sha256) for the report;
     ``pinhole``: fit no lens distortion; ``focal_sigma_scale``: what each focal length's reported sigma is
-    widened by (the model's photo_sigma_scale, as a single pair's is: ``Calibrator.reported_sigma``).
+    widened by (the model's photo_sigma_scale, as a single pair's is: ``Calibrator.reported_sigma``);
+    ``focal_bias_sigma``: the relative sigma added to it in quadrature (the network's bias on a camera, for a
+    focal length read from the images: the pipeline's ``camera_bias_sigma``).
     """
     from stereogeo_cli.fuse import fuse_relative_pose
     from stereogeo_cli.geometry import (
@@ -197,9 +200,9 @@ def calibrate_rig(
         entry["gravity_error_deg"] = math.degrees(float(coupling))
         pairs.append(entry)
 
-    def sigma(est: FocalEstimate, height: int, scale: float) -> dict[str, float]:
+    def sigma(est: FocalEstimate, height: int, scale: float, bias: float) -> dict[str, float]:
         dvfov = height * est.focal_px / (est.focal_px**2 + height * height / 4.0)  # d vfov / d log f
-        s = est.sigma_px * scale
+        s = math.hypot(est.sigma_px * scale / est.focal_px, bias) * est.focal_px
         return {"focal_px": s, "vfov_deg": math.degrees(dvfov * s / est.focal_px)}
 
     notes = list(pose.notes) + [
@@ -209,8 +212,8 @@ def calibrate_rig(
     return StereoCalibration(
         K_left=K_left, K_right=K_right, image_size_left=(w_l, h_l), image_size_right=(w_r, h_r),
         R=pose.R, T=pose.translation(baseline), D_left=D_left, D_right=D_right,
-        sigma_left=sigma(focals[0], h_l, focal_sigma_scale[0]),
-        sigma_right=sigma(focals[1], h_r, focal_sigma_scale[1]),
+        sigma_left=sigma(focals[0], h_l, focal_sigma_scale[0], focal_bias_sigma[0]),
+        sigma_right=sigma(focals[1], h_r, focal_sigma_scale[1], focal_bias_sigma[1]),
         scale_source=scale_source, matches_found=pose.matches_found, matches_inliers=pose.inliers,
         model_file=model[0], model_sha256=model[1], notes="; ".join(notes),
         extra_report={
@@ -267,11 +270,13 @@ def same_rig_calibration(outcomes, job: PairJob, workers, calibrator, bar: _Prog
     second = _run_pass(entries, second_job, workers, calibrator, bar)
     model_info = (ok[0].report or {}).get("model") or {}
     model_id = (model_info.get("file"), model_info.get("sha256"))
-    # the rig's focal lengths are reported as a single pair's are: widened for photographs unless an EXIF
-    # prior took part (Calibrator.reported_sigma)
-    photo = calibrator().photo_sigma_scale[2]
-    scale = tuple(1.0 if any(o.evidence.focal_prior[i] is not None for o in ok) else photo for i in (0, 1))
+    # the rig's focal lengths are reported as a single pair's are: widened for photographs and by the
+    # network's bias on a camera unless an EXIF prior took part (Calibrator.reported_sigma)
+    photo, bias = calibrator().photo_sigma_scale[2], calibrator().conf["camera_bias_sigma"]
+    from_images = [not any(o.evidence.focal_prior[i] is not None for o in ok) for i in (0, 1)]
+    scale = tuple(photo if own else 1.0 for own in from_images)
     rig = calibrate_rig(
-        ok, second, focals, baseline_m, model_id, pinhole=job.pinhole, focal_sigma_scale=scale
-    )
+        ok, second, focals, baseline_m, model_id, pinhole=job.pinhole, focal_sigma_scale=scale,
+        focal_bias_sigma=tuple(bias if own else 0.0 for own in from_images),
+    )  # fmt: skip
     return replace(rig, timing_ms={"total": (time.perf_counter() - start) * 1e3})  # the same-rig stage
