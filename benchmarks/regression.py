@@ -71,7 +71,7 @@ def differences(a: dict, b: dict) -> dict[str, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("old", type=Path, help="the other checkout (e.g. a git worktree of an earlier commit)")
+    parser.add_argument("old", type=Path, help="the other checkout (a git worktree of an earlier commit)")
     parser.add_argument("datasets", nargs="+")
     parser.add_argument("--limit", type=int, default=0, help="the first N pairs of each dataset (0: all)")
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "stereogeo.onnx")
