@@ -1,6 +1,11 @@
 """The calibrate pipeline: images → network → per-camera refiner → stereo fusion → a StereoCalibration.
 
-One :class:`Calibrator` holds one ONNX Runtime session and is reused for every pair of a run.
+One :class:`Calibrator` holds one ONNX Runtime session and is reused for every pair of a run. A pair goes
+through named stages (``Calibrator._calibrate_in_order``), each carrying a :class:`_PairWork` forward:
+the fields (``_read_fields``), each camera's fit and focal decision (``_fit_cameras``), line segments and
+the lens their edges show (``_find_lines``), the fusion (``_fuse_pose``), the vanishing points' focal
+lengths (``_combine_edge_focals``), gravity with vertical lines and shared between the cameras
+(``_fit_gravity``), the baseline (``_baseline``) and the result (``_assemble``).
 """
 
 from __future__ import annotations
@@ -29,7 +34,13 @@ from stereogeo_cli.geometry import (
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.exif import FocalPrior
 from stereogeo_cli.io.images import check_pair
-from stereogeo_cli.network.runtime import DEPTH_STRIDE, FieldNetwork, ViewFields, default_model_path
+from stereogeo_cli.network.runtime import (
+    DEPTH_STRIDE,
+    FieldNetwork,
+    NetworkOutput,
+    ViewFields,
+    default_model_path,
+)
 from stereogeo_cli.refine import CameraFit, combine_focal, parse_sigma_inflation, refine_camera
 from stereogeo_cli.refine.lines import default_conf as lines_conf
 from stereogeo_cli.refine.lines import detect_segments, detector_pixel, gravity_with_lines
@@ -203,6 +214,23 @@ def calibrator_conf(pinhole: bool, lines: bool = True) -> dict:
         conf["lines"] = {"enabled": False}
         conf["manhattan"] = {"enabled": False}
     return conf
+
+
+@dataclass
+class _PairWork:
+    """What one pair's calibration carries from stage to stage; lists are per camera (left, right)."""
+
+    net: NetworkOutput
+    timing: dict[str, float]  # milliseconds per stage
+    fits: list = field(default_factory=lambda: [None, None])  # CameraFit, in original pixels
+    held: list = field(default_factory=lambda: [None, None])  # focal lengths held fixed (given, no sigma)
+    priors: list = field(default_factory=lambda: [None, None])  # the report's focal_prior entries
+    warnings: list[str] = field(default_factory=list)
+    segments: list | None = None  # each image's line segments (original pixels); None: lines off
+    edge_lens: list = field(default_factory=lambda: [None, None])  # PlumbLens the edges show, or None
+    matches: Matches | None = None
+    pose: RelativePose | None = None
+    used: list[int] = field(default_factory=lambda: [0, 0])  # vertical segments in each gravity fit
 
 
 class Calibrator:
@@ -540,12 +568,26 @@ class Calibrator:
         focal_right: float | None,
         exif: tuple[tuple[FocalPrior | None, str | None], tuple[FocalPrior | None, str | None]],
     ) -> CalibrationResult:
-        """:meth:`calibrate` with the images in the order given."""
-        timing: dict[str, float] = {}
+        """:meth:`calibrate` with the images in the order given: the stages below, in order."""
         start = time.perf_counter()
         check_pair(left, right)
-        # Feature matching needs no network output: it runs on a second thread while ONNX Runtime runs
-        # (both release the GIL), so on two cores the two overlap.
+        matching, finding_edges = self._start_image_work(left, right)
+        work = self._fit_cameras(self._read_fields(left, right), (focal_left, focal_right), exif)
+        reading_edges = self._start_edge_focals(finding_edges, work)
+        self._find_lines(left, right, work)
+        work.matches, work.timing["matching"] = matching.result()
+        self._fuse_pose(work)
+        if reading_edges is not None:
+            self._combine_edge_focals(reading_edges, work)
+        self._fit_gravity(work)
+        baseline, baseline_info = self._baseline(work, baseline_m)
+        work.timing["total"] = (time.perf_counter() - start) * 1e3
+        return self._assemble(work, baseline, baseline_info)
+
+    def _start_image_work(self, left: np.ndarray, right: np.ndarray):
+        """Feature matching and the edges' line segments need no network output: they run on the pool's
+        threads while ONNX Runtime runs (all release the GIL), so on two cores they overlap. Returns the two
+        futures (the second None when the vanishing points are off)."""
         matching = self._pool.submit(_timed, match_features, left, right, self.conf["match"])
         finding_edges = None
         if self.conf["manhattan"]["enabled"]:
@@ -553,11 +595,14 @@ class Calibrator:
             finding_edges = self._pool.submit(
                 _timed, lambda: [detect_segments(image, short) for image in (left, right)]
             )
+        return matching, finding_edges
+
+    def _read_fields(self, left: np.ndarray, right: np.ndarray) -> _PairWork:
+        """Stage 1, the network: both views' fields and the pose head's pose; a view too ambiguous to
+        calibrate from fails here."""
         tick = time.perf_counter()
         net = self.network.predict(left, right, flip=self.conf["flip"])
-        timing["network"] = (time.perf_counter() - tick) * 1e3
-
-        warnings: list[str] = []
+        work = _PairWork(net, timing={"network": (time.perf_counter() - tick) * 1e3})
         for name, view in (("left", net.left), ("right", net.right)):
             confidence = 0.5 * (float(np.mean(view.up_confidence)) + float(np.mean(view.latitude_confidence)))
             if confidence < self.conf["min_mean_confidence"]:
@@ -565,148 +610,155 @@ class Calibrator:
                     f"the {name} image shows too little structure to calibrate from "
                     f"(mean field confidence {confidence:.3f})"
                 )
+        return work
+
+    def _fit_cameras(self, work: _PairWork, known: tuple, exif) -> _PairWork:
+        """Stage 2, per camera: the refiner's fit to the fields, its focal length held where it is known or
+        combined with a prior (EXIF, or given with a sigma)."""
         tick = time.perf_counter()
-        priors: list[dict | None] = [None, None]
-        fits, held = [], []  # held: the focal lengths held fixed (given without a sigma)
-        for side, (name, view, known) in enumerate(
-            (("left", net.left, focal_left), ("right", net.right, focal_right))
-        ):
+        for side, (name, view) in enumerate((("left", work.net.left), ("right", work.net.right))):
             found, reason = exif[side]
-            if known is not None and self.conf["known_focal_sigma"] > 0:  # a given focal length, softly
+            focal = known[side]
+            if focal is not None and self.conf["known_focal_sigma"] > 0:  # a given focal length, softly
                 found, reason = (
-                    FocalPrior(known, self.conf["known_focal_sigma"], "given", None, "given"),
+                    FocalPrior(focal, self.conf["known_focal_sigma"], "given", None, "given"),
                     None,
                 )
-                known = None
-            fit, priors[side], disagreement = self._refine_with_prior(view, name, known, found)
-            fits.append(fit)
-            held.append(known)
-            if known is None:
-                warnings.extend(note for note in (reason, disagreement) if note)
-        fit_left, fit_right = fits
-        timing["refine"] = (time.perf_counter() - tick) * 1e3
-        for name, fit in (("left", fit_left), ("right", fit_right)):
-            if not np.isfinite(fit.sigma["focal_px"]) and held == [None, None]:
+                focal = None
+            fit, work.priors[side], disagreement = self._refine_with_prior(view, name, focal, found)
+            work.fits[side] = fit
+            work.held[side] = focal
+            if focal is None:
+                work.warnings.extend(note for note in (reason, disagreement) if note)
+        work.timing["refine"] = (time.perf_counter() - tick) * 1e3
+        for name, fit in zip(("left", "right"), work.fits, strict=True):
+            if not np.isfinite(fit.sigma["focal_px"]) and work.held == [None, None]:
                 raise CalibrationFailed(f"the {name} camera's focal length could not be determined")
-        # a focal length from neither the user nor EXIF: the fields' and the straight edges' combined; the
-        # edges' Manhattan frames are fitted on the pool's thread while this one fits the vertical segments
-        # and the fusion runs (which decides whether the edges are used: not through a lens)
-        reading_edges = None
-        if finding_edges is not None:
-            needed = [held[side] is None and priors[side] is None for side in (0, 1)]
-            reading_edges = self._pool.submit(self._edge_focals, finding_edges, (fit_left, fit_right), needed)
+        return work
 
-        found_segments = None
-        if self.conf["lines"]["enabled"]:
-            # while the matching thread finishes (the fusion needs it); the segments' distortion is taken out
-            # once the fusion has measured it
-            tick = time.perf_counter()
-            found_segments = [
-                detect_segments(image, self.conf["lines"]["max_short_side"]) for image in (left, right)
-            ]
-            timing["lines"] = (time.perf_counter() - tick) * 1e3
-        edge_lens: list[PlumbLens | None] = [None, None]
-        fits_lens = self.conf["fuse"].get("distortion", fuse_conf["distortion"])
-        if found_segments is not None and self.conf["plumb"]["enabled"] and fits_lens:
-            tick = time.perf_counter()
-            for side, (segments, fit) in enumerate(zip(found_segments, (fit_left, fit_right), strict=True)):
-                edge_lens[side] = self._edge_lens(segments, fit)
-            timing["lines"] += (time.perf_counter() - tick) * 1e3
-        matches, timing["matching"] = matching.result()
+    def _start_edge_focals(self, finding_edges, work: _PairWork):
+        """For a focal length from neither the user nor EXIF: the edges' Manhattan frames are fitted on the
+        pool's thread while this one fits the vertical segments and the fusion runs (which decides whether
+        the edges are used: not through a lens). The future, or None."""
+        if finding_edges is None:
+            return None
+        needed = [work.held[side] is None and work.priors[side] is None for side in (0, 1)]
+        return self._pool.submit(self._edge_focals, finding_edges, tuple(work.fits), needed)
+
+    def _find_lines(self, left: np.ndarray, right: np.ndarray, work: _PairWork) -> None:
+        """Stage 3, while the matching thread finishes (the fusion needs it): each image's line segments,
+        and the lens their straight edges show (evidence in the fusion's choice of a lens). The segments'
+        distortion is taken out once the fusion has measured it."""
+        if not self.conf["lines"]["enabled"]:
+            return
         tick = time.perf_counter()
-        pose = self._fuse(matches, fit_left, fit_right, net, held, edge_lens)
-        timing["fusion"] = (time.perf_counter() - tick) * 1e3
-        if reading_edges is not None:
-            reads, timing["manhattan"] = reading_edges.result()  # CPU time on the pool's thread
+        short = self.conf["lines"]["max_short_side"]
+        work.segments = [detect_segments(image, short) for image in (left, right)]
+        fits_lens = self.conf["fuse"].get("distortion", fuse_conf["distortion"])
+        if self.conf["plumb"]["enabled"] and fits_lens:
+            for side, (segments, fit) in enumerate(zip(work.segments, work.fits, strict=True)):
+                work.edge_lens[side] = self._edge_lens(segments, fit)
+        work.timing["lines"] = (time.perf_counter() - tick) * 1e3
+
+    def _fuse_pose(self, work: _PairWork) -> None:
+        """Stage 4: the relative pose from the matches, the fits and the pose head (``_fuse``)."""
+        tick = time.perf_counter()
+        work.pose = self._fuse(work.matches, *work.fits, work.net, work.held, work.edge_lens)
+        work.timing["fusion"] = work.timing.get("fusion", 0.0) + (time.perf_counter() - tick) * 1e3
+
+    def _combine_edge_focals(self, reading_edges, work: _PairWork) -> None:
+        """Stage 5: each camera's focal length combined with its straight edges' where they agree, not
+        through a lens the matches or the edges themselves show (one radial term leaves the edges bent
+        enough to move their vanishing points: EuRoC's vFoV 2.11° → 3.51°, the chessboard set's 5.50° →
+        7.24°; docs/refine.md); then the fusion again with the combined focal lengths."""
+        reads, work.timing["manhattan"] = reading_edges.result()  # CPU time on the pool's thread
+        tick = time.perf_counter()
+        lens_sigmas = self.conf["manhattan"]["lens_sigmas"]
+        for side, view in enumerate((work.net.left, work.net.right)):
+            if (
+                reads[side] is not None
+                and work.pose.distortion[side] == 0.0
+                and _no_lens(work.edge_lens[side], lens_sigmas)
+            ):
+                work.fits[side], work.priors[side] = self._with_manhattan(view, work.fits[side], reads[side])
+        work.timing["manhattan"] += (time.perf_counter() - tick) * 1e3
+        if any(prior is not None and prior["source"] == "lines" for prior in work.priors):
+            self._fuse_pose(work)
+
+    def _fit_gravity(self, work: _PairWork) -> None:
+        """Stage 6: the matches' focal refinement (their ratio always; more where the cameras rotate), each
+        camera's gravity fitted again with its vertical segments, then shared between the two cameras."""
+        pose = work.pose
+        work.warnings.extend(pose.notes)
+        scales = pose.focal_scale
+        work.fits = [fit.with_focal(fit.focal_px * s) for fit, s in zip(work.fits, scales, strict=True)]
+        if work.segments is not None:
             tick = time.perf_counter()
-            fits = [fit_left, fit_right]
-            lens_sigmas = self.conf["manhattan"]["lens_sigmas"]
-            for side, view in enumerate((net.left, net.right)):
-                # not through a lens the matches or the edges themselves show: one radial term leaves the
-                # edges bent enough to move their vanishing points (EuRoC's vFoV 2.11° → 3.51°, the
-                # chessboard set's 5.50° → 7.24°; docs/refine.md)
-                if (
-                    reads[side] is not None
-                    and pose.distortion[side] == 0.0
-                    and _no_lens(edge_lens[side], lens_sigmas)
-                ):
-                    fits[side], priors[side] = self._with_manhattan(view, fits[side], reads[side])
-            fit_left, fit_right = fits
-            timing["manhattan"] += (time.perf_counter() - tick) * 1e3
-            if any(prior is not None and prior["source"] == "lines" for prior in priors):
-                # the fusion again, with the combined focal lengths
-                tick = time.perf_counter()
-                pose = self._fuse(matches, fit_left, fit_right, net, held, edge_lens)
-                timing["fusion"] += (time.perf_counter() - tick) * 1e3
-        warnings.extend(pose.notes)
-        # the matches refine the focal lengths too (their ratio always; more where the cameras rotate)
-        fit_left = fit_left.with_focal(fit_left.focal_px * pose.focal_scale[0])
-        fit_right = fit_right.with_focal(fit_right.focal_px * pose.focal_scale[1])
-        used = [0, 0]
-        if found_segments is not None:
-            tick = time.perf_counter()
-            # after the matches' focal refinement: the fusion's k is in the refined K's coordinates
-            # a focal length with an EXIF prior is held at the combined value, as a known one is
-            fit_left, used[0] = self._with_lines(
-                net.left, fit_left, found_segments[0], pose.distortion[0],
-                fit_left.focal_px if priors[0] else held[0],
-            )  # fmt: skip
-            fit_right, used[1] = self._with_lines(
-                net.right, fit_right, found_segments[1], pose.distortion[1],
-                fit_right.focal_px if priors[1] else held[1],
-            )  # fmt: skip
-            timing["lines"] += (time.perf_counter() - tick) * 1e3
+            views = (work.net.left, work.net.right)
+            for side, (view, fit, segments) in enumerate(zip(views, work.fits, work.segments, strict=True)):
+                # after the matches' focal refinement: the fusion's k is in the refined K's coordinates; a
+                # focal length with an EXIF prior is held at the combined value, as a known one is
+                held = fit.focal_px if work.priors[side] else work.held[side]
+                work.fits[side], work.used[side] = self._with_lines(
+                    view, fit, segments, pose.distortion[side], held
+                )
+            work.timing["lines"] += (time.perf_counter() - tick) * 1e3
         if self.conf["share_gravity"]:
             # the fusion's rotation sigma is the total over three axes
-            fit_left, fit_right = share_gravity(
-                fit_left, fit_right, pose.R, math.radians(pose.sigma_rotation_deg) / math.sqrt(3),
+            work.fits = list(share_gravity(
+                *work.fits, pose.R, math.radians(pose.sigma_rotation_deg) / math.sqrt(3),
                 self.conf["gravity_view_correlation"],
+            ))  # fmt: skip
+
+    def _baseline(self, work: _PairWork, baseline_m: float | None) -> tuple[float, tuple]:
+        """Stage 7, the length of T: given, or learned (the matches with the depth head's depth where the
+        model has one, else the pose head's). Returns it with (scale source, baseline source, its sigma)."""
+        if baseline_m is not None:
+            return float(baseline_m), ("baseline", None, None)
+        net, pose = work.net, work.pose
+        baseline, source, sigma = (
+            float(np.linalg.norm(net.translation)),
+            "pose_head",
+            self._learned_scale_sigma,
+        )
+        found = None
+        if net.left.depth is not None and pose.source == "matches" and self.conf["scale"]["enabled"]:
+            tick = time.perf_counter()
+            K_left, K_right = (intrinsic_matrix(f.focal_px, f.width, f.height) for f in work.fits)
+            depth = DepthField(net.left.depth, net.left.depth_spread, DEPTH_STRIDE, net.left.resize_crop)
+            found = baseline_from_depth(
+                work.matches, depth, K_left, K_right, pose.R, pose.t_direction, pose.distortion,
+                self.conf["scale"],
             )  # fmt: skip
+            work.timing["scale"] = (time.perf_counter() - tick) * 1e3
+        if found is not None:
+            baseline, source, sigma = found.baseline_m, "depth", self._depth_scale_sigma
+        elif not np.isfinite(baseline) or baseline <= 1e-6:
+            baseline = 1.0
+            work.warnings.append("the pose head gave no usable metric scale: T has unit length")
+        return baseline, ("learned", source, sigma)
+
+    def _assemble(self, work: _PairWork, baseline: float, baseline_info: tuple) -> CalibrationResult:
+        """Stage 8: the calibration to write and report, from the stages' results."""
+        fit_left, fit_right = work.fits
+        pose, priors, held, warnings = work.pose, work.priors, work.held, work.warnings
+        scale_source, baseline_source, baseline_sigma = baseline_info
         K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
         K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
         D_left, D_right = (
             opencv_from_division(k, corner_radius(K))
             for k, K in zip(pose.distortion, (K_left, K_right), strict=True)
         )
-
         # the edges' lens in the final K's coordinates, as the fusion's k is reported
         edge_k = [
             None if lens is None else lens.division_k(K[0, 0])
-            for lens, K in zip(edge_lens, (K_left, K_right), strict=True)
+            for lens, K in zip(work.edge_lens, (K_left, K_right), strict=True)
         ]
-        baseline_source, baseline_sigma = None, None
-        if baseline_m is not None:
-            baseline, scale_source = float(baseline_m), "baseline"
-        else:
-            baseline, scale_source = float(np.linalg.norm(net.translation)), "learned"
-            baseline_source, baseline_sigma = "pose_head", self._learned_scale_sigma
-            found = None
-            if net.left.depth is not None and pose.source == "matches" and self.conf["scale"]["enabled"]:
-                tick = time.perf_counter()
-                depth = DepthField(net.left.depth, net.left.depth_spread, DEPTH_STRIDE, net.left.resize_crop)
-                found = baseline_from_depth(
-                    matches,
-                    depth,
-                    K_left,
-                    K_right,
-                    pose.R,
-                    pose.t_direction,
-                    pose.distortion,
-                    self.conf["scale"],
-                )
-                timing["scale"] = (time.perf_counter() - tick) * 1e3
-            if found is not None:
-                baseline, baseline_source, baseline_sigma = found.baseline_m, "depth", self._depth_scale_sigma
-            elif not np.isfinite(baseline) or baseline <= 1e-6:
-                baseline = 1.0
-                warnings.append("the pose head gave no usable metric scale: T has unit length")
-        T = pose.translation(baseline)
-        timing["total"] = (time.perf_counter() - start) * 1e3
         calibration = StereoCalibration(
             K_left=K_left, K_right=K_right,
             image_size_left=(fit_left.width, fit_left.height),
             image_size_right=(fit_right.width, fit_right.height),
-            R=pose.R, T=T, D_left=D_left, D_right=D_right,
+            R=pose.R, T=pose.translation(baseline), D_left=D_left, D_right=D_right,
             gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
             sigma_left=self.reported_sigma(
                 fit_left, _focal_from_fields(priors[0], held[0]), self._lines_spread(priors[0])
@@ -715,7 +767,7 @@ class Calibrator:
                 fit_right, _focal_from_fields(priors[1], held[1]), self._lines_spread(priors[1])
             ),
             scale_source=scale_source, matches_found=pose.matches_found, matches_inliers=pose.inliers,
-            timing_ms=timing, model_file=self.model_path.name, model_sha256=self.network.model_sha256,
+            timing_ms=work.timing, model_file=self.model_path.name, model_sha256=self.network.model_sha256,
             notes="; ".join(warnings),
             extra_report={
                 "pose": {
@@ -738,15 +790,15 @@ class Calibrator:
                     # stereogeo_cli/fuse/scale.py) or "pose_head"; None when given
                     "baseline_source": baseline_source,
                     # the pose head's own learned length of T in metres (a second opinion; the network's)
-                    "head_baseline_m": _finite(float(np.linalg.norm(net.translation))),
+                    "head_baseline_m": _finite(float(np.linalg.norm(work.net.translation))),
                     # relative 1-sigma of a learned baseline (the model's validation figure); None when given
                     "sigma_baseline_rel": baseline_sigma,
                 },
                 # each camera's EXIF focal length, where one was combined with the fields' (left, right)
                 "focal_prior": priors,
                 # vertical line segments each camera's gravity was fitted with (left, right)
-                "vertical_segments": used,
+                "vertical_segments": work.used,
                 "warnings": list(warnings),
             },
         )  # fmt: skip
-        return CalibrationResult(calibration, fit_left, fit_right, pose, warnings, matches)
+        return CalibrationResult(calibration, fit_left, fit_right, pose, warnings, work.matches)
