@@ -63,6 +63,10 @@ default_conf = {
     # kind of camera, and that error is common to every photo of it (docs/refine.md, "Uncertainty of the
     # focal length on photographs"); 0: none
     "camera_bias_sigma": 0.25,
+    # the fusion refines the two focal lengths' common scale with the pose where both are read from the
+    # images, its prior the fields' read with the camera bias above (how far that read can be off): the
+    # matches of cameras that turn against each other see it (stereogeo_cli/fuse/pose.py, docs/refine.md)
+    "common_focal_from_matches": True,
     # Also run the mirrored pair and average the fields (twice the network time). Off: it lowers the mean
     # errors on renders but raises the median roll error and the real-image vFoV errors (docs/network.md).
     "flip": False,
@@ -380,6 +384,7 @@ class Calibrator:
         net,
         held: list[float | None],
         edge_lens: list[PlumbLens | None],
+        priors: list[dict | None],
     ) -> RelativePose:
         """The relative pose from the matches, the two fits (K, gravity, their sigmas) and the pose head."""
         K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
@@ -389,15 +394,22 @@ class Calibrator:
                 sum(fit.sigma[k] ** 2 for fit in (fit_left, fit_right) for k in ("roll_deg", "pitch_deg"))
             )
         )
+        focal_sigma_rel = tuple(
+            None if held[side] is not None else fit.sigma["focal_px"] / fit.focal_px
+            for side, fit in enumerate((fit_left, fit_right))
+        )
+        common = None
+        from_fields = [_focal_from_fields(prior, h) for prior, h in zip(priors, held, strict=True)]
+        if self.conf["common_focal_from_matches"] and all(from_fields) and None not in focal_sigma_rel:
+            common = math.hypot(
+                0.5 * (focal_sigma_rel[0] + focal_sigma_rel[1]), self.conf["camera_bias_sigma"]
+            )
         pose = fuse_relative_pose(
             matches, K_left, K_right,
             gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
             gravity_sigma_rad=max(gravity_sigma, 1e-4) if math.isfinite(gravity_sigma) else None,
             prior_R=net.rotation, prior_t=net.translation, conf=self.conf["fuse"],
-            focal_sigma_rel=(
-                None if held[0] is not None else fit_left.sigma["focal_px"] / fit_left.focal_px,
-                None if held[1] is not None else fit_right.sigma["focal_px"] / fit_right.focal_px,
-            ),
+            focal_sigma_rel=focal_sigma_rel, common_focal_sigma_rel=common,
             distortion_evidence=(
                 None if edge_lens[0] is None else edge_lens[0].division_k(fit_left.focal_px),
                 None if edge_lens[1] is None else edge_lens[1].division_k(fit_right.focal_px),
@@ -663,7 +675,7 @@ class Calibrator:
     def _fuse_pose(self, work: _PairWork) -> None:
         """Stage 4: the relative pose from the matches, the fits and the pose head (``_fuse``)."""
         tick = time.perf_counter()
-        work.pose = self._fuse(work.matches, *work.fits, work.net, work.held, work.edge_lens)
+        work.pose = self._fuse(work.matches, *work.fits, work.net, work.held, work.edge_lens, work.priors)
         work.timing["fusion"] = work.timing.get("fusion", 0.0) + (time.perf_counter() - tick) * 1e3
 
     def _combine_edge_focals(self, reading_edges, work: _PairWork) -> None:
@@ -687,7 +699,8 @@ class Calibrator:
 
     def _fit_gravity(self, work: _PairWork) -> None:
         """Stage 6: the matches' focal refinement (their ratio always; more where the cameras rotate), each
-        camera's gravity fitted again with its vertical segments, then shared between the two cameras."""
+        camera's gravity fitted again with its vertical segments, then shared between the two cameras (not
+        through the R of a turned rig)."""
         pose = work.pose
         work.warnings.extend(pose.notes)
         scales = pose.focal_scale
@@ -703,7 +716,9 @@ class Calibrator:
                     view, fit, segments, pose.distortion[side], held
                 )
             work.timing["lines"] += (time.perf_counter() - tick) * 1e3
-        if self.conf["share_gravity"]:
+        # Not through the R of a turned rig: its matches lie in a narrow strip and its R, though better than
+        # the pose head's, is still off by more than its sigma says (docs/refine.md, "Turned rigs").
+        if self.conf["share_gravity"] and not pose.turned:
             # the fusion's rotation sigma is the total over three axes
             work.fits = list(share_gravity(
                 *work.fits, pose.R, math.radians(pose.sigma_rotation_deg) / math.sqrt(3),
@@ -779,6 +794,9 @@ class Calibrator:
                     # the two focal lengths held equal: the matches could not tell their ratio from 1 (or,
                     # with too few matches, the fields read them alike)
                     "equal_focals": pose.equal_focals,
+                    # a turned rig's matches refined the two focal lengths' common scale: its relative 1-sigma
+                    # from the matches (None: not refined, the images' read of the focal lengths stands)
+                    "sigma_common_focal_rel": pose.sigma_common_focal,
                     # the fitted radial distortion: division-model k per camera (left, right) and its sigma
                     "distortion_k": [float(k) for k in pose.distortion],
                     "sigma_distortion_k": [_finite(s) for s in pose.sigma_distortion],

@@ -248,9 +248,10 @@ def test_the_sign_of_t_comes_from_parallax_and_from_the_pose_head_in_a_far_scene
 
 def test_the_joint_refinement_jacobian_is_the_derivative_of_its_residuals():
     """The analytic Jacobian (Sampson errors through F, gravity, rotation and direction priors, focal
-    ratio) and the k columns equal central differences of the residuals along the LM's own steps, away
-    from the truth (a 3° rotation prior residual, a moved direction, a focal ratio, k inside its bounds)."""
-    from stereogeo_cli.fuse.pose import _PoseProblem, _Priors
+    ratio, common focal scale) and the k columns equal central differences of the residuals along the LM's
+    own steps, away from the truth (a 3° rotation prior residual, a moved direction, a focal ratio and a
+    common scale, k inside its bounds)."""
+    from stereogeo_cli.fuse.pose import _PoseProblem, _Priors, _State
     from stereogeo_cli.fuse.pose import default_conf as fuse_conf
 
     rng = np.random.default_rng(47)
@@ -272,9 +273,11 @@ def test_the_joint_refinement_jacobian_is_the_derivative_of_its_residuals():
         (0.4, 0.6, 0.05, 0.01),
         ((-0.5, 0.1), (-0.5, 0.1)),
         fuse_conf,
+        0.25,
     )
     t = T / np.linalg.norm(T) + np.array([0.0, 0.05, -0.03])
-    state = (rotation_from_axis_angle([0.01, 0.02, -0.01]) @ R, t / np.linalg.norm(t), 0.03, (-0.05, 0.02))
+    rotated = rotation_from_axis_angle([0.01, 0.02, -0.01]) @ R
+    state = _State(rotated, t / np.linalg.norm(t), 0.03, -0.04, (-0.05, 0.02))
     r, J = problem.jacobian(state)
     assert np.allclose(r, problem.residuals(state))
     h = 1e-6
@@ -286,7 +289,7 @@ def test_the_joint_refinement_jacobian_is_the_derivative_of_its_residuals():
         ],
         axis=1,
     )
-    assert J.shape == numeric.shape == (120 + 3 + 3 + 3 + 1 + 2, 8)
+    assert J.shape == numeric.shape == (120 + 3 + 3 + 3 + 1 + 1 + 2, 9)
     scale = np.abs(numeric).max(axis=0)
     assert np.all(np.abs(J - numeric) <= 1e-5 * scale + 1e-7), np.abs(J - numeric).max(axis=0) / scale
 
@@ -410,3 +413,52 @@ def test_the_rectified_piano_pair_gets_a_rotation_sigma_of_its_own_accuracy(shar
     assert result.pose.source == "matches"
     error = np.degrees(rotation_error(result.pose.R, np.eye(3)))
     assert error < 0.3 and result.pose.sigma_rotation_deg < 0.3, (error, result.pose.sigma_rotation_deg)
+
+
+def _turned_rig_matches(rng, K, yaw_deg, count=400, noise_px=0.5):
+    """Matches of a rig whose right camera is turned ``yaw_deg`` about the vertical axis, 0.5 m to the
+    side: points 5–60 m away that both cameras see (a car's cameras looking out of its two corners)."""
+    R = rotation_from_axis_angle([0.0, np.radians(yaw_deg), 0.0])
+    T = R @ -np.array([0.5, 0.0, 0.1])
+    xl, xr = [], []
+    while len(xl) < count:
+        ray = np.linalg.inv(K) @ np.array([rng.uniform(0, 640), rng.uniform(0, 480), 1.0])
+        X = ray / np.linalg.norm(ray) * rng.uniform(5, 60)
+        Y = R @ X + T
+        p = K @ Y
+        if Y[2] > 0 and 0 <= p[0] / p[2] < 640 and 0 <= p[1] / p[2] < 480:
+            q = K @ X
+            xl.append(q[:2] / q[2])
+            xr.append(p[:2] / p[2])
+    xl = np.array(xl) + rng.normal(0, noise_px, (count, 2))
+    xr = np.array(xr) + rng.normal(0, noise_px, (count, 2))
+    return Matches(xl, xr), R, T
+
+
+def test_a_turned_rig_gets_its_focal_length_from_the_matches_and_not_the_pose_head():
+    """Cameras turned 50° apart (far outside the few degrees the pose head learnt), both focal lengths read
+    30 % short, the pose head reading a parallel rig: the matches give the rotation and the common focal
+    scale, the head is left out with a note, and the scale's sigma says the matches measured it. On a
+    near-parallel rig the common scale stays at the fields' read, and the head stays in."""
+    rng = np.random.default_rng(81)
+    K = intrinsic_matrix(600, 640, 480)
+    K_read = intrinsic_matrix(420, 640, 480)
+    matches, R, T = _turned_rig_matches(rng, K, 50.0)
+    pose = fuse_relative_pose(
+        matches, K_read, K_read, prior_R=np.eye(3), prior_t=np.array([-1.0, 0.0, 0.0]),
+        focal_sigma_rel=(0.1, 0.1), common_focal_sigma_rel=0.3,
+    )  # fmt: skip
+    assert pose.source == "matches"
+    assert np.degrees(rotation_error(pose.R, R)) < 0.5
+    assert np.allclose(np.array(pose.focal_scale) * 420, 600, rtol=0.03)
+    assert pose.sigma_common_focal is not None and pose.sigma_common_focal < 0.05
+    assert any("pose head" in note for note in pose.notes)
+
+    R_par, T_par = _rig(rng)
+    near = _matches(rng, K, K, R_par, T_par, outliers=0.0)
+    pose = fuse_relative_pose(
+        near, K_read, K_read, prior_R=R_par, prior_t=T_par,
+        focal_sigma_rel=(0.1, 0.1), common_focal_sigma_rel=0.3,
+    )  # fmt: skip
+    assert pose.sigma_common_focal is None and not pose.notes
+    assert abs(np.log(pose.focal_scale[0] * pose.focal_scale[1])) < 0.05  # the ratio only moves

@@ -6,6 +6,7 @@ Convention (fixed): ``X_right = R @ X_left + T``, T in metres.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -21,6 +22,7 @@ from stereogeo_cli.geometry.gravity import (
 )
 from stereogeo_cli.geometry.rotation import (
     axis_angle_from_rotation,
+    rotation_angle,
     rotation_error,
     rotation_from_axis_angle,
     skew,
@@ -39,6 +41,13 @@ default_conf = {
     "iterations": 15,  # Gauss–Newton/LM steps of the joint refinement
     "prior_rotation_sigma_deg": 5.0,  # 1-sigma of the pose head's rotation
     "prior_direction_sigma_deg": 15.0,  # 1-sigma of the pose head's translation direction
+    # A "turned" rig: the essential matrix of at least turned_rig_min_inliers inliers turns the cameras this
+    # many degrees or more apart, five times the renders' largest toe-in. There the two focal lengths' common
+    # scale is refined with the pose (where the caller gives its sigma), and the pose head is left out where
+    # it reads the rotation head_gate_sigmas of its sigmas away (docs/refine.md, "Turned rigs")
+    "turned_rig_deg": 20.0,
+    "turned_rig_min_inliers": 30,
+    "head_gate_sigmas": 4.0,
     "sign_min_parallax_deg": 1.0,  # points whose rays meet at more than this decide the sign of t
     "sign_min_points": 10,  # fewer such points: the pose head's sign of t
     "distortion": True,  # fit one radial (division-model) distortion parameter per camera to the matches
@@ -73,6 +82,12 @@ class RelativePose:
     sigma_direction_deg: float = float("inf")
     gravity_error_deg: float | None = None  # angle between R·g_left and g_right (the fields' gravity)
     focal_scale: tuple[float, float] = (1.0, 1.0)  # refined focal / given focal, per camera
+    # the 1-sigma of the two focal lengths' common log scale where the matches refined it (None: not refined,
+    # the fields' sigma stands)
+    sigma_common_focal: float | None = None
+    # the matches turn the cameras far apart (fuse_relative_pose's turned_rig_deg): a rig unlike the renders,
+    # where the pose head was left out if it disagreed, and the sigmas of R come from the matches alone
+    turned: bool = False
     # the two focal lengths were held equal (the matches could not tell their ratio from 1; without matches,
     # pipeline.hold_alike_focals: the fields read them alike)
     equal_focals: bool = False
@@ -214,6 +229,7 @@ def fuse_relative_pose(
     prior_R: np.ndarray | None = None,
     prior_t: np.ndarray | None = None,
     focal_sigma_rel: tuple[float | None, float | None] = (None, None),
+    common_focal_sigma_rel: float | None = None,
     distortion_evidence: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
     conf: dict | None = None,
 ) -> RelativePose:
@@ -228,6 +244,11 @@ def fuse_relative_pose(
         focal_sigma_rel: the relative 1-sigma of each camera's focal length in K (None: known, held).
             The ratio of the two focals is refined with the pose, each camera taking a share of the
             correction in proportion to its variance; ``focal_scale`` in the result says how far each moved.
+        common_focal_sigma_rel: the relative 1-sigma of both focal lengths together (how far the fields' read
+            of the camera can be off, a camera's bias included), or None. Given, and with both focal lengths
+            free, their common scale is refined with the pose too: the matches of a rig whose cameras turn
+            against each other see it (a rotation maps the rays of one camera onto the other's pixels through
+            both focal lengths); on a near-parallel rig they do not, and it stays at the fields' read.
         distortion_evidence: per camera, a (k, 1-sigma) of its division-model k in the normalised coordinates
             of its K read from other evidence (the image's straight edges, ``refine/plumb.py``), or None.
             It weighs in the test of whether a lens is fitted at all (a chi-square of how much better it
@@ -277,8 +298,32 @@ def fuse_relative_pose(
     if conf["distortion"]:
         corners = (corner_radius(K_left), corner_radius(K_right))
         k_bounds = tuple((division_limit(r), conf["distortion_max_pincushion"] / r**2) for r in corners)
+    # A turned rig: its cameras turn tens of degrees apart (the essential matrix's rotation, on enough
+    # inliers). The two focal lengths' common scale shows in its matches (a rotation maps one camera's rays
+    # onto the other's pixels through both), and is refined with the pose there; on a near-parallel rig the
+    # epipolar geometry does not depend on it, and a free scale drifts with the noise and the priors.
+    turned = (
+        float(np.degrees(rotation_angle(R0))) >= conf["turned_rig_deg"]
+        and mask0.sum() >= conf["turned_rig_min_inliers"]
+    )
+    common = None
+    if split is not None and all(v > 0 for v in var) and common_focal_sigma_rel and turned:
+        common = float(common_focal_sigma_rel)
+    # The pose head learnt rigs whose cameras turn a few degrees at most, and its sigmas hold there; on a
+    # turned rig that it reads far from the matches, its prior would pull the pose (and the focal lengths
+    # with it) towards a rig it knows: it is left out.
+    head_R, head_t = prior_R, prior_t
+    if prior_R is not None and turned:
+        R_p = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
+        apart = float(np.degrees(rotation_error(R_p, R0)))
+        if apart > conf["head_gate_sigmas"] * conf["prior_rotation_sigma_deg"]:
+            head_R = head_t = None
+            notes.append(
+                f"the pose head's rotation is {apart:.0f}° from the matches' (a rig unlike those it learnt): "
+                "pose from the matches and gravity"
+            )
     priors = _Priors(
-        gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad, prior_R, prior_t,
+        gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad, head_R, head_t,
         np.radians(conf["prior_rotation_sigma_deg"]), np.radians(conf["prior_direction_sigma_deg"]),
     )  # fmt: skip
     errors0 = sampson_errors(fundamental_matrix(K_left, K_right, R0, t0), matches.left, matches.right)
@@ -286,20 +331,21 @@ def fuse_relative_pose(
     # Short baselines leave a valley of near-equal epipolar error between rotation and translation:
     # refine from the essential matrix and from the pose head (made consistent with gravity), keep the best.
     starts = [(R0, t0)]
-    if prior_R is not None and prior_t is not None:
+    if head_R is not None and head_t is not None:
         R_p = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
         t_p = np.asarray(prior_t, dtype=float) / np.linalg.norm(prior_t)
         if rotation_error(R_p, R0) > np.radians(0.5) or np.degrees(gravity_angle(t_p, t0)) > 5.0:
             starts.append((R_p, t_p))  # a second start only where it could lead elsewhere
 
-    def fit(R, t, d, mask, bounds, split=split) -> _Fit:
+    def fit(R, t, d, c, mask, bounds, split=split) -> _Fit:
         """Two rounds: refine on the inliers, re-select the inliers among all matches, refine again."""
-        k = (0.0, 0.0)
+        state = _State(R, t, d, c, (0.0, 0.0))
         for _ in range(2):
-            R, t, d, k, H, scales, _ = _refine_pose(
-                R, t, d, k, matches.left[mask], matches.right[mask], K_left, K_right, noise, priors, split,
-                bounds, conf,
+            state, H, scales, _ = _refine_pose(
+                state, matches.left[mask], matches.right[mask], K_left, K_right, noise, priors, split,
+                bounds, conf, common,
             )  # fmt: skip
+            R, t, d, c, k = state
             K_l, K_r = _scaled(K_left, scales[0]), _scaled(K_right, scales[1])
             left = undistort_division(matches.left, K_left, k[0])
             right = undistort_division(matches.right, K_right, k[1])
@@ -315,16 +361,17 @@ def fuse_relative_pose(
         elif share < 0.5:
             t = -t
         focal_terms = 0.0 if split is None else ((d - split[3]) / split[2]) ** 2
+        focal_terms += 0.0 if common is None else (c / common) ** 2
         k_terms = (k[0] ** 2 + k[1] ** 2) / conf["distortion_sigma"] ** 2
         score = float(
             np.sum(np.minimum((errors / noise) ** 2, 9.0)) + np.sum(priors.residuals(R, t) ** 2)
             + focal_terms + k_terms
         )  # fmt: skip
-        return _Fit(score, R, t, d, k, scales, H, mask)
+        return _Fit(score, R, t, d, c, k, scales, H, mask)
 
     best = None
     for R, t in starts:
-        candidate = fit(R, t, 0.0, mask0, None)
+        candidate = fit(R, t, 0.0, 0.0, mask0, None)
         if best is None or candidate.score < best.score:
             best = candidate
     # The lens model is chosen by a nested test on the pinhole fit's inliers: re-refined as a pinhole and
@@ -335,10 +382,12 @@ def fuse_relative_pose(
     radial = False
     if k_bounds is not None and best.mask.sum() >= conf["distortion_min_inliers"]:
         on = (matches.left[best.mask], matches.right[best.mask], K_left, K_right, noise, priors, split)
-        R, t, d, _, _, _, pinhole_cost = _refine_pose(best.R, best.t, best.d, (0.0, 0.0), *on, None, conf)
-        _, _, _, k, _, _, radial_cost = _refine_pose(R, t, d, (0.0, 0.0), *on, k_bounds, conf)
-        if pinhole_cost + _lens_evidence(k, distortion_evidence) - radial_cost > conf["distortion_min_gain"]:
-            best, radial = fit(best.R, best.t, best.d, best.mask, k_bounds), True
+        start = _State(best.R, best.t, best.d, best.c, (0.0, 0.0))
+        pinhole, _, _, pinhole_cost = _refine_pose(start, *on, None, conf, common)
+        radial_fit, _, _, radial_cost = _refine_pose(pinhole, *on, k_bounds, conf, common)
+        gain = pinhole_cost + _lens_evidence(radial_fit.k, distortion_evidence) - radial_cost
+        if gain > conf["distortion_min_gain"]:
+            best, radial = fit(best.R, best.t, best.d, best.c, best.mask, k_bounds), True
     # Most rigs pair two identical cameras. Where the matches cannot tell the focal ratio from 1 (it trades
     # against a forward component of t on a rig looking ahead), both focal lengths are held equal: the same
     # nested test as the lens', one parameter fewer. The equal pose pays the fields' own evidence of a ratio.
@@ -348,7 +397,7 @@ def fuse_relative_pose(
     if split is not None and same_size and conf["equal_focal_max_gain"] > 0:
         d_equal = float(np.log(K_right[1, 1] / K_left[1, 1]))  # f_l·exp(w_l·d) = f_r·exp(-w_r·d)
         held = (split[0], split[1], 1e-6, d_equal)
-        equal = fit(best.R, best.t, d_equal, best.mask, k_bounds if radial else None, held)
+        equal = fit(best.R, best.t, d_equal, best.c, best.mask, k_bounds if radial else None, held)
         if equal.score + (d_equal / split[2]) ** 2 - best.score < conf["equal_focal_max_gain"]:
             best, equal_focals, used_split = equal, True, held
     R, t, scales, k, H, inlier_mask = best.R, best.t, best.scales, best.k, best.H, best.mask
@@ -356,8 +405,11 @@ def fuse_relative_pose(
     # What the matches cannot see widens the pose's covariance without moving it: the two cameras' common
     # focal scale (the fields' sigma; held focal lengths have none) and, for a raw camera (a lens fitted),
     # the principal points, which the camera model puts at the image centres.
+    # (a common scale that was refined is in the Hessian already)
     known = [v is None or not np.isfinite(v) or v <= 0 for v in focal_sigma_rel]
-    considered = {"focal": 0.0 if any(known) else 0.5 * float(focal_sigma_rel[0] + focal_sigma_rel[1])}
+    considered = {
+        "focal": 0.0 if any(known) or common else 0.5 * float(focal_sigma_rel[0] + focal_sigma_rel[1])
+    }
     if radial:
         considered["principal_point"] = conf["principal_point_sigma"]
     cov = cov + _consider_covariance(
@@ -371,6 +423,7 @@ def fuse_relative_pose(
         k_bounds if radial else None,
         conf,
         considered,
+        common,
     )
     distortion, sigma_distortion = (0.0, 0.0), (float("inf"), float("inf"))
     if radial:
@@ -383,6 +436,7 @@ def fuse_relative_pose(
         sigma_rotation_deg=float(np.degrees(np.sqrt(np.trace(cov[:3, :3])))),
         sigma_direction_deg=float(np.degrees(np.sqrt(np.trace(cov[3:5, 3:5])))),
         focal_scale=(float(np.exp(scales[0])), float(np.exp(scales[1]))), equal_focals=equal_focals,
+        sigma_common_focal=None if common is None else float(np.sqrt(cov[6, 6])), turned=turned,
         distortion=distortion, sigma_distortion=sigma_distortion,
         gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
         notes=notes,
@@ -399,7 +453,9 @@ def _lens_evidence(k, distortion_evidence) -> float:
     return float(evidence)
 
 
-def _consider_covariance(best, matches, K_left, K_right, noise, priors, split, k_bounds, conf, sigmas):
+def _consider_covariance(
+    best, matches, K_left, K_right, noise, priors, split, k_bounds, conf, sigmas, common
+):
     """The covariance the pose inherits from parameters held at a guess (a "consider" covariance):
     S·Σc·Sᵀ with S = −H⁻¹·JᵀW·J_c the estimate's sensitivity to them at the solution.
 
@@ -410,10 +466,19 @@ def _consider_covariance(best, matches, K_left, K_right, noise, priors, split, k
 
     def problem(K_l, K_r):
         return _PoseProblem(
-            matches.left[best.mask], matches.right[best.mask], K_l, K_r, noise, priors, split, k_bounds, conf
+            matches.left[best.mask],
+            matches.right[best.mask],
+            K_l,
+            K_r,
+            noise,
+            priors,
+            split,
+            k_bounds,
+            conf,
+            common,
         )
 
-    state = (best.R, best.t, best.d, best.k)
+    state = _State(best.R, best.t, best.d, best.c, best.k)
     base = problem(K_left, K_right)
     r, J = base.jacobian(state)
     w = base.weights(r)
@@ -448,6 +513,17 @@ def _consider_covariance(best, matches, K_left, K_right, noise, priors, split, k
     return S @ np.diag(np.square(sigma)) @ S.T
 
 
+class _State(NamedTuple):
+    """A point of the joint refinement: rotation, unit direction, log focal ratio d, common log focal
+    scale c (0 where it is not refined) and the two cameras' division-model k."""
+
+    R: np.ndarray
+    t: np.ndarray
+    d: float
+    c: float
+    k: tuple[float, float]
+
+
 @dataclass
 class _Fit:
     """One refined pose: its robust score over all matches, the parameters, the Hessian and the inliers."""
@@ -456,6 +532,7 @@ class _Fit:
     R: np.ndarray
     t: np.ndarray
     d: float  # log focal ratio (0 when the focals are held)
+    c: float  # common log focal scale (0 when it is not refined)
     k: tuple[float, float]  # division-model k per camera, in the given K's normalised coordinates
     scales: tuple[float, float]  # log focal scale per camera
     H: np.ndarray
@@ -515,20 +592,26 @@ def _scaled(K: np.ndarray, log_scale: float) -> np.ndarray:
 
 
 class _PoseProblem:
-    """The joint refinement's residuals and Jacobian over a state (R, t, d, k).
+    """The joint refinement's residuals and Jacobian over a :class:`_State`.
 
     Residuals: the robust Sampson errors in units of the match noise, then the priors in units of their
-    sigmas (gravity coupling, pose-head rotation and direction, the focal ratio d, the two k). A step is
-    (rotation update [3], direction tangent [2], with ``split`` d, with ``k_bounds`` the two k).
+    sigmas (gravity coupling, pose-head rotation and direction, the focal ratio d, the common focal scale c,
+    the two k). A step is (rotation update [3], direction tangent [2], with ``split`` d, with ``common`` c,
+    with ``k_bounds`` the two k).
     """
 
     eps = 1e-7  # central-difference step of the k columns
 
-    def __init__(self, left, right, K_left, K_right, noise_px, priors: _Priors, split, k_bounds, conf):
+    def __init__(
+        self, left, right, K_left, K_right, noise_px, priors: _Priors, split, k_bounds, conf, common
+    ):
         self.left, self.right, self.K = left, right, (K_left, K_right)
         self.noise_px, self.priors, self.split, self.k_bounds = noise_px, priors, split, k_bounds
+        self.common = common
         self.sigma_k = conf["distortion_sigma"]
-        self.n_base = 5 if split is None else 6
+        self.i_d = 5 if split is not None else None
+        self.i_c = 5 + (split is not None) if common is not None else None
+        self.n_base = 5 + (split is not None) + (common is not None)
         self.n_params = self.n_base + (0 if k_bounds is None else 2)
         self.n_data = len(left)
         self.huber_k = conf["sampson_scale_px"] / noise_px  # Huber threshold in units of the noise
@@ -536,15 +619,17 @@ class _PoseProblem:
         self.inverse = (np.linalg.inv(K_left), np.linalg.inv(K_right))
         self.undistorted: dict = {}
 
-    def log_scales(self, d: float) -> tuple[float, float]:
-        return (0.0, 0.0) if self.split is None else (self.split[0] * d, -self.split[1] * d)
+    def log_scales(self, d: float, c: float) -> tuple[float, float]:
+        if self.split is None:
+            return (c, c)
+        return (self.split[0] * d + c, -self.split[1] * d + c)
 
     def inverse_K(self, side: int, log_scale: float) -> np.ndarray:
         return np.diag([np.exp(-log_scale), np.exp(-log_scale), 1.0]) @ self.inverse[side]
 
-    def F(self, R, t, d) -> np.ndarray:
-        s_l, s_r = self.log_scales(d)
-        return fundamental_matrix(_scaled(self.K[0], s_l), _scaled(self.K[1], s_r), R, t)
+    def F(self, state: _State) -> np.ndarray:
+        s_l, s_r = self.log_scales(state.d, state.c)
+        return fundamental_matrix(_scaled(self.K[0], s_l), _scaled(self.K[1], s_r), state.R, state.t)
 
     def points(self, side: int, k_side: float) -> np.ndarray:
         """The matches of one side undistorted with k (cached: most evaluations share k)."""
@@ -553,36 +638,37 @@ class _PoseProblem:
             self.undistorted[key] = undistort_division((self.left, self.right)[side], self.K[side], k_side)
         return self.undistorted[key]
 
-    def moved(self, state, delta):
-        R, t, d, k = state
+    def moved(self, state: _State, delta) -> _State:
+        k = state.k
         if self.k_bounds is not None:
             k = tuple(float(np.clip(k[i] + delta[self.n_base + i], *self.k_bounds[i])) for i in (0, 1))
-        return (
-            rotation_from_axis_angle(delta[:3]) @ R,
-            retract_on_sphere(t, delta[3:5], tangent_basis(t)),
-            d + (delta[5] if self.split is not None else 0.0),
+        return _State(
+            rotation_from_axis_angle(delta[:3]) @ state.R,
+            retract_on_sphere(state.t, delta[3:5], tangent_basis(state.t)),
+            state.d + (delta[self.i_d] if self.i_d is not None else 0.0),
+            state.c + (delta[self.i_c] if self.i_c is not None else 0.0),
             k,
         )
 
-    def prior_residuals(self, state) -> np.ndarray:
-        R, t, d, k = state
-        ratio = [] if self.split is None else [(d - self.split[3]) / self.split[2]]
+    def prior_residuals(self, state: _State) -> np.ndarray:
+        ratio = [] if self.split is None else [(state.d - self.split[3]) / self.split[2]]
+        common = [] if self.common is None else [state.c / self.common]
+        k = state.k
         k_prior = [] if self.k_bounds is None else [k[0] / self.sigma_k, k[1] / self.sigma_k]
-        return np.concatenate([self.priors.residuals(R, t), ratio, k_prior])
+        return np.concatenate([self.priors.residuals(state.R, state.t), ratio, common, k_prior])
 
-    def residuals(self, state) -> np.ndarray:
-        R, t, d, k = state
-        sampson = _sampson(self.F(R, t, d), self.points(0, k[0]), self.points(1, k[1]))[0]
+    def residuals(self, state: _State) -> np.ndarray:
+        sampson = _sampson(self.F(state), self.points(0, state.k[0]), self.points(1, state.k[1]))[0]
         return np.concatenate([sampson / self.noise_px, self.prior_residuals(state)])
 
-    def jacobian(self, state) -> tuple[np.ndarray, np.ndarray]:
+    def jacobian(self, state: _State) -> tuple[np.ndarray, np.ndarray]:
         """The residuals and their Jacobian with respect to :meth:`moved`'s step at 0. The Sampson errors'
         derivatives with respect to F chain with F's analytic ones: a rotation step δ moves R to
         exp([δ]ₓ)R, so ∂E/∂δ_i = [t]ₓ[e_i]ₓR; a direction step moves t along its tangent basis b_j, so
         ∂E/∂δ_j = [b_j]ₓR. A camera's k moves its points only (central differences, within its bounds)."""
-        R, t, d, k = state
+        R, t, k = state.R, state.t, state.k
         priors, split, n_data, noise = self.priors, self.split, self.n_data, self.noise_px
-        s_l, s_r = self.log_scales(d)
+        s_l, s_r = self.log_scales(state.d, state.c)
         M_l, M_r = self.inverse_K(0, s_l), self.inverse_K(1, s_r)
         E = essential_matrix(R, t)
         F = M_r.T @ E @ M_l
@@ -591,9 +677,11 @@ class _PoseProblem:
         basis = tangent_basis(t)
         dE = [skew(t) @ skew(e) @ R for e in np.eye(3)] + [skew(basis[:, j]) @ R for j in range(2)]
         dF = [M_r.T @ dE_i @ M_l for dE_i in dE]
-        if split is not None:  # ∂M_l/∂d = −w_l·P·M_l, ∂M_r/∂d = w_r·P·M_r (P = diag(1, 1, 0))
-            P = np.diag([1.0, 1.0, 0.0])
+        P = np.diag([1.0, 1.0, 0.0])  # a log scale s moves M to diag(e⁻ˢ, e⁻ˢ, 1)·K⁻¹: ∂M/∂s = −P·M
+        if split is not None:  # ∂M_l/∂d = −w_l·P·M_l, ∂M_r/∂d = w_r·P·M_r
             dF.append(split[1] * M_r.T @ P @ E @ M_l - split[0] * M_r.T @ E @ P @ M_l)
+        if self.common is not None:  # ∂M/∂c = −P·M on both sides
+            dF.append(-(M_r.T @ P @ E @ M_l) - M_r.T @ E @ P @ M_l)
         J = np.zeros((len(r), self.n_params))
         J[:n_data, : self.n_base] = dS @ np.stack([m.ravel() for m in dF], axis=1) / noise
         row = n_data  # the priors, in the order of _Priors.residuals and prior_residuals
@@ -608,12 +696,15 @@ class _PoseProblem:
             J[row : row + 3, 3:5] = sign * basis / priors.direction_sigma
             row += 3
         if split is not None:
-            J[row, 5] = 1.0 / split[2]
+            J[row, self.i_d] = 1.0 / split[2]
+            row += 1
+        if self.common is not None:
+            J[row, self.i_c] = 1.0 / self.common
             row += 1
         for i in range(self.n_base, self.n_params):  # a camera's k: its points, and its prior
             step = np.zeros(self.n_params)
             step[i] = self.eps
-            k_plus, k_minus = self.moved(state, step)[3], self.moved(state, -step)[3]
+            k_plus, k_minus = self.moved(state, step).k, self.moved(state, -step).k
             J[:n_data, i] = (
                 _sampson(F, self.points(0, k_plus[0]), self.points(1, k_plus[1]))[0]
                 - _sampson(F, self.points(0, k_minus[0]), self.points(1, k_minus[1]))[0]
@@ -630,21 +721,24 @@ class _PoseProblem:
         return w
 
 
-def _refine_pose(R, t, d, k, left, right, K_left, K_right, noise_px, priors: _Priors, split, k_bounds, conf):
+def _refine_pose(
+    state: _State, left, right, K_left, K_right, noise_px, priors, split, k_bounds, conf, common
+):
     """LM on (rotation update [3], direction tangent [2], with ``split`` the log focal ratio d, with
-    ``k_bounds`` the two cameras' distortion k): robust Sampson errors in units of the match noise, plus
-    the soft gravity coupling, the pose-head prior, the refiner's focal ratio and the zero-mean distortion
-    prior, in units of their sigmas (:class:`_PoseProblem`).
+    ``common`` the common log focal scale c, with ``k_bounds`` the two cameras' distortion k): robust
+    Sampson errors in units of the match noise, plus the soft gravity coupling, the pose-head prior, the
+    refiner's focal ratio, the fields' common focal scale and the zero-mean distortion prior, in units of
+    their sigmas (:class:`_PoseProblem`).
 
     ``split`` = (w_left, w_right, sigma_d, d_0): the left focal is scaled by exp(w_left·d) and the right
     one by exp(-w_right·d), so each camera takes its share of a ratio correction; the prior on d is d_0 ±
-    sigma_d (0 ± the fields' sigma; a tiny sigma holds d). ``k`` = (k_left, k_right)
-    undistorts the matches in the normalised coordinates of the given K_left, K_right; ``k_bounds`` their
-    (lower, upper) limits. Returns R, t, d, k, the Gauss–Newton Hessian, the two log focal scales and
-    the final robust cost (in units of the noise and the sigmas).
+    sigma_d (0 ± the fields' sigma; a tiny sigma holds d). ``common``: the 1-sigma of the prior 0 on c,
+    which scales both focal lengths by exp(c) (None: c held at the state's). ``state.k`` undistorts the
+    matches in the normalised coordinates of the given K_left, K_right; ``k_bounds`` their (lower, upper)
+    limits. Returns the refined state, the Gauss–Newton Hessian, the two log focal scales and the final
+    robust cost (in units of the noise and the sigmas).
     """
-    problem = _PoseProblem(left, right, K_left, K_right, noise_px, priors, split, k_bounds, conf)
-    state = (R, t, d, k)
+    problem = _PoseProblem(left, right, K_left, K_right, noise_px, priors, split, k_bounds, conf, common)
     lam = 1e-3
     H = np.eye(problem.n_params)
     for _ in range(conf["iterations"]):
@@ -664,5 +758,5 @@ def _refine_pose(R, t, d, k, left, right, K_left, K_right, noise_px, priors: _Pr
             if lam > 1e6:
                 break
     r = problem.residuals(state)
-    R, t, d, k = state
-    return R, t, d, k, H, problem.log_scales(d), float(np.sum(problem.weights(r) * r * r))
+    scales = problem.log_scales(state.d, state.c)
+    return state, H, scales, float(np.sum(problem.weights(r) * r * r))
