@@ -400,7 +400,7 @@ class Calibrator:
         )
         common = None
         from_fields = [_focal_from_fields(prior, h) for prior, h in zip(priors, held, strict=True)]
-        if self.conf["common_focal_from_matches"] and all(from_fields) and None not in focal_sigma_rel:
+        if self.conf["common_focal_from_matches"] and all(from_fields):  # neither focal length is held
             common = math.hypot(
                 0.5 * (focal_sigma_rel[0] + focal_sigma_rel[1]), self.conf["camera_bias_sigma"]
             )

@@ -313,8 +313,9 @@ def fuse_relative_pose(
     # turned rig that it reads far from the matches, its prior would pull the pose (and the focal lengths
     # with it) towards a rig it knows: it is left out.
     head_R, head_t = prior_R, prior_t
-    if prior_R is not None and turned:
+    if prior_R is not None:
         R_p = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
+    if prior_R is not None and turned:
         apart = float(np.degrees(rotation_error(R_p, R0)))
         if apart > conf["head_gate_sigmas"] * conf["prior_rotation_sigma_deg"]:
             head_R = head_t = None
@@ -332,14 +333,14 @@ def fuse_relative_pose(
     # refine from the essential matrix and from the pose head (made consistent with gravity), keep the best.
     starts = [(R0, t0)]
     if head_R is not None and head_t is not None:
-        R_p = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
         t_p = np.asarray(prior_t, dtype=float) / np.linalg.norm(prior_t)
         if rotation_error(R_p, R0) > np.radians(0.5) or np.degrees(gravity_angle(t_p, t0)) > 5.0:
             starts.append((R_p, t_p))  # a second start only where it could lead elsewhere
 
-    def fit(R, t, d, c, mask, bounds, split=split) -> _Fit:
-        """Two rounds: refine on the inliers, re-select the inliers among all matches, refine again."""
-        state = _State(R, t, d, c, (0.0, 0.0))
+    def fit(start: _State, mask, bounds, split=split) -> _Fit:
+        """Two rounds from ``start`` (its k at 0): refine on the inliers, re-select the inliers among all
+        matches, refine again."""
+        state = start._replace(k=(0.0, 0.0))
         for _ in range(2):
             state, H, scales, _ = _refine_pose(
                 state, matches.left[mask], matches.right[mask], K_left, K_right, noise, priors, split,
@@ -367,11 +368,11 @@ def fuse_relative_pose(
             np.sum(np.minimum((errors / noise) ** 2, 9.0)) + np.sum(priors.residuals(R, t) ** 2)
             + focal_terms + k_terms
         )  # fmt: skip
-        return _Fit(score, R, t, d, c, k, scales, H, mask)
+        return _Fit(score, _State(R, t, d, c, k), scales, H, mask)
 
     best = None
     for R, t in starts:
-        candidate = fit(R, t, 0.0, 0.0, mask0, None)
+        candidate = fit(_State(R, t, 0.0, 0.0, (0.0, 0.0)), mask0, None)
         if best is None or candidate.score < best.score:
             best = candidate
     # The lens model is chosen by a nested test on the pinhole fit's inliers: re-refined as a pinhole and
@@ -382,12 +383,12 @@ def fuse_relative_pose(
     radial = False
     if k_bounds is not None and best.mask.sum() >= conf["distortion_min_inliers"]:
         on = (matches.left[best.mask], matches.right[best.mask], K_left, K_right, noise, priors, split)
-        start = _State(best.R, best.t, best.d, best.c, (0.0, 0.0))
+        start = best.state._replace(k=(0.0, 0.0))
         pinhole, _, _, pinhole_cost = _refine_pose(start, *on, None, conf, common)
         radial_fit, _, _, radial_cost = _refine_pose(pinhole, *on, k_bounds, conf, common)
         gain = pinhole_cost + _lens_evidence(radial_fit.k, distortion_evidence) - radial_cost
         if gain > conf["distortion_min_gain"]:
-            best, radial = fit(best.R, best.t, best.d, best.c, best.mask, k_bounds), True
+            best, radial = fit(best.state, best.mask, k_bounds), True
     # Most rigs pair two identical cameras. Where the matches cannot tell the focal ratio from 1 (it trades
     # against a forward component of t on a rig looking ahead), both focal lengths are held equal: the same
     # nested test as the lens', one parameter fewer. The equal pose pays the fields' own evidence of a ratio.
@@ -397,10 +398,10 @@ def fuse_relative_pose(
     if split is not None and same_size and conf["equal_focal_max_gain"] > 0:
         d_equal = float(np.log(K_right[1, 1] / K_left[1, 1]))  # f_l·exp(w_l·d) = f_r·exp(-w_r·d)
         held = (split[0], split[1], 1e-6, d_equal)
-        equal = fit(best.R, best.t, d_equal, best.c, best.mask, k_bounds if radial else None, held)
+        equal = fit(best.state._replace(d=d_equal), best.mask, k_bounds if radial else None, held)
         if equal.score + (d_equal / split[2]) ** 2 - best.score < conf["equal_focal_max_gain"]:
             best, equal_focals, used_split = equal, True, held
-    R, t, scales, k, H, inlier_mask = best.R, best.t, best.scales, best.k, best.H, best.mask
+    (R, t, _, _, k), scales, H, inlier_mask = best.state, best.scales, best.H, best.mask
     cov = np.linalg.inv(H)
     # What the matches cannot see widens the pose's covariance without moving it: the two cameras' common
     # focal scale (the fields' sigma; held focal lengths have none) and, for a raw camera (a lens fitted),
@@ -436,6 +437,7 @@ def fuse_relative_pose(
         sigma_rotation_deg=float(np.degrees(np.sqrt(np.trace(cov[:3, :3])))),
         sigma_direction_deg=float(np.degrees(np.sqrt(np.trace(cov[3:5, 3:5])))),
         focal_scale=(float(np.exp(scales[0])), float(np.exp(scales[1]))), equal_focals=equal_focals,
+        # c sits after the rotation (3), the direction (2) and the ratio d (common needs both focals free)
         sigma_common_focal=None if common is None else float(np.sqrt(cov[6, 6])), turned=turned,
         distortion=distortion, sigma_distortion=sigma_distortion,
         gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
@@ -478,7 +480,7 @@ def _consider_covariance(
             common,
         )
 
-    state = _State(best.R, best.t, best.d, best.c, best.k)
+    state = best.state
     base = problem(K_left, K_right)
     r, J = base.jacobian(state)
     w = base.weights(r)
@@ -529,11 +531,7 @@ class _Fit:
     """One refined pose: its robust score over all matches, the parameters, the Hessian and the inliers."""
 
     score: float
-    R: np.ndarray
-    t: np.ndarray
-    d: float  # log focal ratio (0 when the focals are held)
-    c: float  # common log focal scale (0 when it is not refined)
-    k: tuple[float, float]  # division-model k per camera, in the given K's normalised coordinates
+    state: _State  # its k in the given K's normalised coordinates
     scales: tuple[float, float]  # log focal scale per camera
     H: np.ndarray
     mask: np.ndarray
