@@ -264,29 +264,16 @@ def fuse_relative_pose(
     found = len(matches)
     initial = essential_pose(matches, K_left, K_right, conf) if found >= conf["min_matches"] else None
     if initial is None or initial[2].sum() < conf["min_inliers"]:
-        if prior_R is None or prior_t is None:
-            raise ValueError("too few matches for the relative pose and no pose-head prior to fall back on")
         inliers = 0 if initial is None else int(initial[2].sum())
-        notes.append(
-            f"too few matches ({found} found, {inliers} inliers): pose from the pose head and gravity"
-        )
-        R = (
-            _pull_towards_gravity(prior_R, gravity_left, gravity_right, gravity_sigma_rad, conf)
-            if has_gravity
-            else prior_R
-        )
-        t = np.asarray(prior_t, dtype=float)
-        return RelativePose(
-            R=R, t_direction=t / np.linalg.norm(t), source="pose_head", matches_found=found, inliers=inliers,
-            sigma_rotation_deg=float(conf["prior_rotation_sigma_deg"]),
-            sigma_direction_deg=float(conf["prior_direction_sigma_deg"]),
-            gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
-            notes=notes,
+        return _pose_head_alone(
+            found, inliers, prior_R, prior_t, gravity_left if has_gravity else None, gravity_right,
+            gravity_sigma_rad, conf,
         )  # fmt: skip
 
     R0, t0, mask0 = initial
-    # Only the ratio of the two focal lengths is refined with the pose: the matches fix it well on any rig,
-    # while the absolute focal is unobservable on near-parallel rigs and absorbs lens distortion.
+    # The ratio of the two focal lengths is refined with the pose: the matches fix it well on any rig, while
+    # the absolute focal is unobservable on near-parallel rigs and absorbs lens distortion (its common scale
+    # is refined only on a turned rig: _turned_rig).
     var = [0.0 if (v is None or not np.isfinite(v) or v <= 0) else float(v) ** 2 for v in focal_sigma_rel]
     split = None if sum(var) <= 0 else (var[0] / sum(var), var[1] / sum(var), float(np.sqrt(sum(var))), 0.0)
     # Radial distortion bends the epipolar lines (on a stereo rig: vertical disparity growing towards the
@@ -298,31 +285,14 @@ def fuse_relative_pose(
     if conf["distortion"]:
         corners = (corner_radius(K_left), corner_radius(K_right))
         k_bounds = tuple((division_limit(r), conf["distortion_max_pincushion"] / r**2) for r in corners)
-    # A turned rig: its cameras turn tens of degrees apart (the essential matrix's rotation, on enough
-    # inliers). The two focal lengths' common scale shows in its matches (a rotation maps one camera's rays
-    # onto the other's pixels through both), and is refined with the pose there; on a near-parallel rig the
-    # epipolar geometry does not depend on it, and a free scale drifts with the noise and the priors.
-    turned = (
-        float(np.degrees(rotation_angle(R0))) >= conf["turned_rig_deg"]
-        and mask0.sum() >= conf["turned_rig_min_inliers"]
-    )
+    R_p = None
+    if prior_R is not None:  # the pose head's rotation made consistent with gravity
+        R_p = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
+    turned, head_out = _turned_rig(R0, mask0, R_p, conf, notes)
     common = None
     if split is not None and all(v > 0 for v in var) and common_focal_sigma_rel and turned:
         common = float(common_focal_sigma_rel)
-    # The pose head learnt rigs whose cameras turn a few degrees at most, and its sigmas hold there; on a
-    # turned rig that it reads far from the matches, its prior would pull the pose (and the focal lengths
-    # with it) towards a rig it knows: it is left out.
-    head_R, head_t = prior_R, prior_t
-    if prior_R is not None:
-        R_p = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
-    if prior_R is not None and turned:
-        apart = float(np.degrees(rotation_error(R_p, R0)))
-        if apart > conf["head_gate_sigmas"] * conf["prior_rotation_sigma_deg"]:
-            head_R = head_t = None
-            notes.append(
-                f"the pose head's rotation is {apart:.0f}° from the matches' (a rig unlike those it learnt): "
-                "pose from the matches and gravity"
-            )
+    head_R, head_t = (None, None) if head_out else (prior_R, prior_t)
     priors = _Priors(
         gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad, head_R, head_t,
         np.radians(conf["prior_rotation_sigma_deg"]), np.radians(conf["prior_direction_sigma_deg"]),
@@ -443,6 +413,55 @@ def fuse_relative_pose(
         gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
         notes=notes,
     )  # fmt: skip
+
+
+def _pose_head_alone(found, inliers, prior_R, prior_t, gravity_left, gravity_right, gravity_sigma_rad, conf):
+    """Too few matches for the relative pose: the pose head's, rotated by the least amount that makes it
+    agree with gravity (``gravity_left`` None: no gravity)."""
+    if prior_R is None or prior_t is None:
+        raise ValueError("too few matches for the relative pose and no pose-head prior to fall back on")
+    notes = [f"too few matches ({found} found, {inliers} inliers): pose from the pose head and gravity"]
+    has_gravity = gravity_left is not None
+    R = (
+        _pull_towards_gravity(prior_R, gravity_left, gravity_right, gravity_sigma_rad, conf)
+        if has_gravity
+        else prior_R
+    )
+    t = np.asarray(prior_t, dtype=float)
+    return RelativePose(
+        R=R, t_direction=t / np.linalg.norm(t), source="pose_head", matches_found=found, inliers=inliers,
+        sigma_rotation_deg=float(conf["prior_rotation_sigma_deg"]),
+        sigma_direction_deg=float(conf["prior_direction_sigma_deg"]),
+        gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
+        notes=notes,
+    )  # fmt: skip
+
+
+def _turned_rig(R0, mask0, head_R, conf, notes: list[str]) -> tuple[bool, bool]:
+    """Whether the rig is turned, and whether the pose head is left out (with a note in ``notes``).
+
+    A turned rig: its cameras turn tens of degrees apart (the essential matrix ``R0``'s rotation, on enough
+    inliers ``mask0``). The two focal lengths' common scale shows in its matches (a rotation maps one
+    camera's rays onto the other's pixels through both), and is refined with the pose there; on a
+    near-parallel rig the epipolar geometry does not depend on it, and a free scale drifts with the noise
+    and the priors. The pose head learnt rigs whose cameras turn a few degrees at most, and its sigmas hold
+    there; on a turned rig that it reads (``head_R``, made consistent with gravity) far from the matches,
+    its prior would pull the pose (and the focal lengths with it) towards a rig it knows: it is left out.
+    """
+    turned = (
+        float(np.degrees(rotation_angle(R0))) >= conf["turned_rig_deg"]
+        and mask0.sum() >= conf["turned_rig_min_inliers"]
+    )
+    if head_R is None or not turned:
+        return turned, False
+    apart = float(np.degrees(rotation_error(head_R, R0)))
+    if apart <= conf["head_gate_sigmas"] * conf["prior_rotation_sigma_deg"]:
+        return turned, False
+    notes.append(
+        f"the pose head's rotation is {apart:.0f}° from the matches' (a rig unlike those it learnt): "
+        "pose from the matches and gravity"
+    )
+    return turned, True
 
 
 def _lens_evidence(k, distortion_evidence) -> float:
