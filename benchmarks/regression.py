@@ -7,7 +7,9 @@ layout: ``left/``, ``right/``, ``calib.jsonl``) in its own process, with its own
 (default: this checkout's shipped one). Then, per pair, the two reports are compared: each camera's focal
 length (relative difference), roll, pitch and vFoV (degrees), the rotation between the two R (degrees) and
 the angle between the two T (degrees). Prints how many pairs agree within 0.1 % and 0.01°, the largest
-difference of each kind, and the pairs that do not agree.
+difference of each kind, and the pairs that do not agree. Then, per dataset, the median error of each
+checkout against the dataset's ground truth (vFoV, roll and pitch over both cameras, R): whether the pairs
+that moved moved towards the truth.
 """
 
 from __future__ import annotations
@@ -69,17 +71,58 @@ def differences(a: dict, b: dict) -> dict[str, float]:
     return out
 
 
+def errors(report: dict, truth: dict) -> dict[str, list[float]]:
+    """A report's errors against a calib.jsonl line: vFoV, roll, pitch (both cameras; gravity where known)
+    and R, in degrees."""
+    out: dict[str, list[float]] = {"vFoV": [], "roll": [], "pitch": [], "R": []}
+    for side in ("left", "right"):
+        K, height = np.array(truth[side]["K"]), truth[side]["height"]
+        vfov = math.degrees(2 * math.atan(height / (2 * K[1, 1])))
+        out["vFoV"].append(abs(report[side]["vfov_deg"] - vfov))
+        up = truth[side].get("gravity_up")
+        if up is not None:
+            roll, pitch = math.degrees(math.atan2(-up[0], -up[1])), math.degrees(math.asin(up[2]))
+            out["roll"].append(abs((report[side]["roll_deg"] - roll + 180) % 360 - 180))
+            out["pitch"].append(abs(report[side]["pitch_deg"] - pitch))
+    if truth.get("R") is not None:
+        Ra, Rb = np.array(report["R"]), np.array(truth["R"])
+        out["R"].append(math.degrees(math.acos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1, 1))))
+    return out
+
+
+def accuracy(old: dict, new: dict, datasets: list[str]) -> None:
+    """Per dataset, the two checkouts' median errors against the ground truth."""
+    for folder in map(Path, datasets):
+        truth = {
+            f"{folder.name}/{json.loads(line)['id']}": json.loads(line)
+            for line in open(folder / "calib.jsonl")
+        }
+        rows = {}
+        for label, reports in (("old", old), ("new", new)):
+            pooled: dict[str, list[float]] = {}
+            for name, report in reports.items():
+                if name in truth and "error" not in report:
+                    for key, values in errors(report, truth[name]).items():
+                        pooled.setdefault(key, []).extend(values)
+            rows[label] = {k: float(np.median(v)) for k, v in pooled.items() if v}
+        cells = [f"{k} {rows['old'][k]:.2f} → {rows['new'].get(k, math.nan):.2f}" for k in rows["old"]]
+        print(f"  {folder.name} (median error, °, old → new): " + ", ".join(cells))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("old", type=Path, help="the other checkout (a git worktree of an earlier commit)")
     parser.add_argument("datasets", nargs="+")
     parser.add_argument("--limit", type=int, default=0, help="the first N pairs of each dataset (0: all)")
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "stereogeo.onnx")
+    parser.add_argument("--keep", type=Path, help="a folder to keep the two checkouts' reports in")
     args = parser.parse_args()
     datasets = [str(Path(d).resolve()) for d in args.datasets]
     with tempfile.TemporaryDirectory() as tmp:
-        old = run(args.old.resolve(), args.model.resolve(), datasets, args.limit, Path(tmp) / "old.json")
-        new = run(ROOT, args.model.resolve(), datasets, args.limit, Path(tmp) / "new.json")
+        folder = args.keep or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        old = run(args.old.resolve(), args.model.resolve(), datasets, args.limit, folder / "old.json")
+        new = run(ROOT, args.model.resolve(), datasets, args.limit, folder / "new.json")
     largest: dict[str, float] = {}
     disagree = []
     for name in old:
@@ -99,6 +142,7 @@ def main() -> None:
         print(f"  largest {key}: {value:.3g}")
     for name, off in disagree:
         print(f"  {name}: " + ", ".join(f"{k} {v}" for k, v in off.items()))
+    accuracy(old, new, datasets)
 
 
 if __name__ == "__main__":

@@ -24,8 +24,7 @@ def _fit(gravity, cov2, cross=(0.0, 0.0)):
     cov[2, 2] = 0.05**2
     cov[2, :2] = cov[:2, 2] = cross
     fit = CameraFit(width=640, height=480, focal_px=500.0, gravity_up=np.array([0.0, -1.0, 0.0]),
-                    roll_deg=0.0, pitch_deg=0.0, vfov_deg=0.0, sigma={}, covariance=cov, cost=0.0,
-                    iterations=0, converged=True)  # fmt: skip
+                    covariance=cov, cost=0.0, iterations=0, converged=True)  # fmt: skip
     return fit.with_gravity(gravity, cov)
 
 

@@ -12,11 +12,8 @@ from stereogeo_cli.refine.lm import CameraFit
 
 
 def _fit(focal, rel_sigma, width=640, height=480):
-    vfov = math.degrees(2 * math.atan(height / (2 * focal)))
-    sigma = {"focal_px": focal * rel_sigma, "vfov_deg": 1.0, "roll_deg": 1.0, "pitch_deg": 1.0}
-    return CameraFit(
-        width, height, focal, np.array([0.0, -1.0, 0.0]), 0.0, 0.0, vfov, sigma, np.eye(3), 0.0, 1, True
-    )
+    covariance = np.diag([np.radians(1.0) ** 2, np.radians(1.0) ** 2, rel_sigma**2])
+    return CameraFit(width, height, focal, np.array([0.0, -1.0, 0.0]), covariance, 0.0, 1, True)
 
 
 def _head_pose():

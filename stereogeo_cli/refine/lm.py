@@ -21,6 +21,7 @@ from stereogeo_cli.geometry.gravity import (
     roll_pitch_from_gravity,
     tangent_basis,
 )
+from stereogeo_cli.refine.levenberg import Settings, covariance, levenberg_marquardt
 
 default_conf = {
     "max_iterations": 30,  # LM steps, accepted or rejected
@@ -55,50 +56,54 @@ def parse_sigma_inflation(text: str, what: str = "sigma inflation") -> float | t
 
 @dataclass
 class CameraFit:
-    """One camera's refined parameters and their 1-sigma uncertainties (pixels and degrees)."""
+    """One camera's refined parameters and their uncertainty: the focal length, gravity and the covariance
+    of θ = (δ_pitch, δ_roll·cos(pitch), log f). Roll, pitch, vFoV and the 1-sigma figures are derived from
+    these (properties), so a new focal, gravity or covariance moves them all."""
 
     width: int
     height: int
     focal_px: float
     gravity_up: np.ndarray  # [3] unit world-UP in camera coordinates
-    roll_deg: float
-    pitch_deg: float
-    vfov_deg: float
-    sigma: dict[str, float]  # focal_px, vfov_deg, roll_deg, pitch_deg
     covariance: np.ndarray  # [3 x 3] of θ = (δ_pitch, δ_roll·cos(pitch), log f)
     cost: float
     iterations: int
     converged: bool
     history: list[float] = field(default_factory=list)  # cost after every accepted step
 
+    @property
+    def roll_deg(self) -> float:
+        return float(np.degrees(roll_pitch_from_gravity(self.gravity_up)[0]))
+
+    @property
+    def pitch_deg(self) -> float:
+        return float(np.degrees(roll_pitch_from_gravity(self.gravity_up)[1]))
+
+    @property
+    def vfov_deg(self) -> float:
+        return float(np.degrees(vfov_from_focal(self.focal_px, self.height)))
+
+    @property
+    def sigma(self) -> dict[str, float]:
+        """The 1-sigma figures: ``focal_px``, ``vfov_deg``, ``roll_deg``, ``pitch_deg``."""
+        pitch = float(roll_pitch_from_gravity(self.gravity_up)[1])
+        return _sigmas(self.covariance, self.focal_px, self.height, pitch)
+
     def with_focal(self, focal: float, width: int | None = None, height: int | None = None) -> CameraFit:
-        """This fit with another focal (and image size), its vFoV recomputed and its relative sigma kept."""
+        """This fit with another focal (and image size); the relative sigma of the focal is kept."""
         width, height = width or self.width, height or self.height
-        rel_sigma = self.sigma["focal_px"] / self.focal_px
-        sigma = {
-            **self.sigma,
-            "focal_px": focal * rel_sigma,
-            "vfov_deg": _vfov_sigma_deg(focal, height, rel_sigma),
-        }
-        vfov = float(np.degrees(vfov_from_focal(focal, height)))
-        return replace(self, width=width, height=height, focal_px=focal, vfov_deg=vfov, sigma=sigma)
+        return replace(self, width=width, height=height, focal_px=focal)
 
     def with_gravity(self, gravity: np.ndarray, covariance: np.ndarray) -> CameraFit:
         """This fit with another gravity and covariance of θ (e.g. after evidence from the other camera), the
-        focal kept; roll, pitch and every sigma are recomputed."""
+        focal kept."""
         g = np.asarray(gravity, dtype=float) / np.linalg.norm(gravity)
-        roll, pitch = roll_pitch_from_gravity(g)
-        return replace(
-            self, gravity_up=g, roll_deg=float(np.degrees(roll)), pitch_deg=float(np.degrees(pitch)),
-            covariance=np.asarray(covariance, dtype=float),
-            sigma=_sigmas(covariance, self.focal_px, self.height, float(pitch)),
-        )  # fmt: skip
+        return replace(self, gravity_up=g, covariance=np.asarray(covariance, dtype=float))
 
     def in_original_pixels(self, rc: ResizeCrop) -> CameraFit:
         """This fit, made on a resized and cropped image (e.g. the network input), in the original's pixels.
 
         Roll and pitch are unchanged (the crop keeps the principal point at the centre); the focal scales
-        by the resize; the vFoV is recomputed for the original height (a crop changes it).
+        by the resize; the vFoV follows the original height (a crop changes it).
         """
         return self.with_focal(rc.focal_to_input(self.focal_px), *rc.in_size)
 
@@ -111,7 +116,7 @@ class CameraFit:
             "roll_deg": self.roll_deg,
             "pitch_deg": self.pitch_deg,
             "gravity_up": [float(v) for v in self.gravity_up],
-            "sigma": dict(self.sigma),
+            "sigma": self.sigma,
             "cost": self.cost,
             "iterations": self.iterations,
             "converged": self.converged,
@@ -176,6 +181,28 @@ class _Problem:
         self.n = float(len(x))
         self.focal_prior = focal_prior  # (log f0, sigma of log f) or None
         self.gravity_prior = gravity_prior  # (g0 [3], sigma in radians) or None
+
+    @classmethod
+    def of(cls, field_samples, line_up, centre, scale, focal_prior, gravity_prior) -> _Problem:
+        """The problem of the field samples (x, y, up, latitude, c_up, c_lat) and, where given, the vertical
+        line segments' up samples ``line_up`` (x, y, up, weight; no latitude)."""
+        samples = field_samples
+        if line_up is not None:
+            lx, ly, lu, lw = (np.asarray(a, dtype=float) for a in line_up)
+            zeros = np.zeros(len(lx))
+            more = (lx, ly, lu.reshape(-1, 2), zeros, lw, zeros)
+            samples = tuple(np.concatenate(pair) for pair in zip(samples, more, strict=True))
+        x, y, up, lat, c_up, c_lat = samples
+        return cls(x, y, up, np.sin(lat), c_up, c_lat, *centre, scale, focal_prior, gravity_prior)
+
+    def covariance(self, g: np.ndarray, log_f: float, free: np.ndarray, inflation) -> np.ndarray:
+        """The robust (sandwich) covariance of the M-estimator at (g, log f), H⁻¹·M·H⁻¹ with M = Σ gₙgₙᵀ
+        (unlike s²·H⁻¹ it stays honest where the Huber weights and confidences make residuals unequal),
+        widened by ``inflation`` (one factor, or three for roll, pitch and vFoV)."""
+        _, _, bread, meat = self.normal_equations(g, log_f, covariance=True)
+        roll_s, pitch_s, vfov_s = np.broadcast_to(np.asarray(inflation, dtype=float), (3,))
+        scale = np.array([pitch_s, roll_s, vfov_s])  # in the order of the parameters: pitch, roll, log f
+        return covariance(bread, meat, free) * np.outer(scale, scale)
 
     def _prior_cost(self, g: np.ndarray, log_f: float) -> float:
         cost = 0.0
@@ -348,20 +375,77 @@ def refine_camera(
         A :class:`CameraFit` in the pixels of ``image_size``.
     """
     conf = {**default_conf, **(conf or {})}
-    up = np.asarray(up, dtype=float)
     latitude = np.asarray(latitude, dtype=float)
+    width, height = (latitude.shape[1], latitude.shape[0]) if image_size is None else image_size
+    cx, cy = principal_point(width, height)
+    field_samples = _field_samples(up, latitude, up_confidence, latitude_confidence, pixel_xy, conf)
+    cu, cl = field_samples[4:]
+
+    focal_value, focal_sigma = _parse_focal_prior(focal_prior)
+    gravity_value, gravity_sigma = _parse_gravity_prior(gravity_prior)
+    fix_focal = focal_value is not None and focal_sigma is None
+    fix_gravity = gravity_value is not None and gravity_sigma is None
+    problem = _Problem.of(
+        field_samples, line_up, (cx, cy), conf["huber_scale"],
+        None if focal_sigma is None else (np.log(focal_value), focal_sigma / focal_value),
+        None if gravity_sigma is None else (gravity_value, gravity_sigma),
+    )  # fmt: skip
+
+    log_f_min = float(np.log(focal_from_vfov(np.radians(conf["max_vfov_deg"]), height)))
+    log_f_max = float(np.log(focal_from_vfov(np.radians(conf["min_vfov_deg"]), height)))
+    g = gravity_init if gravity_init is not None else gravity_value
+    log_f = focal_init if focal_init is not None else focal_value
+    g, log_f = _start(g, log_f, field_samples, width, height, conf)
+    log_f = float(np.clip(log_f, log_f_min, log_f_max))
+
+    def retract(state, step):
+        g, log_f = state
+        g_new = retract_on_sphere(g, step[:2]) if not fix_gravity else g
+        return g_new, float(np.clip(log_f + step[2], log_f_min, log_f_max))
+
+    free = np.array([not fix_gravity, not fix_gravity, not fix_focal])
+    usable = bool(np.any(cu > 0) or np.any(cl > 0))
+    settings = Settings(
+        max_iterations=conf["max_iterations"] if usable else 0, lambda_init=conf["lambda_init"],
+        lambda_max=conf["lambda_max"], relative_tolerance=conf["relative_tolerance"],
+    )  # fmt: skip
+    fit = levenberg_marquardt(
+        (g, log_f), lambda s: problem.cost(*s), lambda s: problem.normal_equations(*s)[:2], retract, settings,
+        free,
+    )  # fmt: skip
+    g, log_f = fit.x
+
+    if usable:
+        cov = problem.covariance(g, log_f, free, conf["sigma_inflation"])
+    else:
+        cov = np.zeros((3, 3))
+        cov[np.ix_(free, free)] = np.inf
+    return CameraFit(
+        width=int(width),
+        height=int(height),
+        focal_px=float(np.exp(log_f)),
+        gravity_up=g,
+        covariance=cov,
+        cost=fit.cost,
+        iterations=fit.iterations,
+        converged=fit.converged,
+        history=fit.history,
+    )
+
+
+def _field_samples(up, latitude, up_confidence, latitude_confidence, pixel_xy, conf):
+    """The fields sub-sampled on a regular grid of about ``conf["max_samples"]`` cells: (x, y, up [N x 2],
+    latitude, c_up, c_lat), unit up vectors, and cells with a non-finite or null up vector weighing 0."""
+    up = np.asarray(up, dtype=float)
     H_, W_ = latitude.shape
     if up.shape != (H_, W_, 2):
         raise ValueError(f"up field must be {H_}x{W_}x2 to match the latitude field, got {up.shape}")
     c_up = np.ones((H_, W_)) if up_confidence is None else np.asarray(up_confidence, dtype=float)
     c_lat = np.ones((H_, W_)) if latitude_confidence is None else np.asarray(latitude_confidence, dtype=float)
-    width, height = (W_, H_) if image_size is None else image_size
-    cx, cy = principal_point(width, height)
     if pixel_xy is None:
         xs, ys = np.meshgrid(np.arange(W_, dtype=float), np.arange(H_, dtype=float))
     else:
         xs, ys = (np.asarray(a, dtype=float) for a in pixel_xy)
-
     rows, cols = _sample_grid(H_, W_, conf["max_samples"])
     sel = np.ix_(rows, cols)
     x, y = xs[sel].ravel(), ys[sel].ravel()
@@ -373,119 +457,19 @@ def refine_camera(
     valid = np.isfinite(up_s).all(axis=1) & np.isfinite(lat_s) & (norm[:, 0] > 1e-6)
     cu, cl = np.where(valid, cu, 0.0), np.where(valid, cl, 0.0)
     up_s, lat_s = np.where(valid[:, None], up_s, 0.0), np.where(valid, lat_s, 0.0)
+    return x, y, up_s, lat_s, cu, cl
 
-    focal_value, focal_sigma = _parse_focal_prior(focal_prior)
-    gravity_value, gravity_sigma = _parse_gravity_prior(gravity_prior)
-    fix_focal = focal_value is not None and focal_sigma is None
-    fix_gravity = gravity_value is not None and gravity_sigma is None
-    n_field = len(x)
-    if line_up is not None:
-        lx, ly, lu, lw = (np.asarray(a, dtype=float) for a in line_up)
-        x, y = np.concatenate([x, lx]), np.concatenate([y, ly])
-        up_all = np.concatenate([up_s, lu.reshape(-1, 2)])
-        lat_all = np.concatenate([lat_s, np.zeros(len(lx))])
-        cu_all, cl_all = np.concatenate([cu, lw]), np.concatenate([cl, np.zeros(len(lx))])
-    else:
-        up_all, lat_all, cu_all, cl_all = up_s, lat_s, cu, cl
-    problem = _Problem(
-        x, y, up_all, np.sin(lat_all), cu_all, cl_all, cx, cy, conf["huber_scale"],
-        None if focal_sigma is None else (np.log(focal_value), focal_sigma / focal_value),
-        None if gravity_sigma is None else (gravity_value, gravity_sigma),
-    )  # fmt: skip
 
-    log_f_min = float(np.log(focal_from_vfov(np.radians(conf["max_vfov_deg"]), height)))
-    log_f_max = float(np.log(focal_from_vfov(np.radians(conf["min_vfov_deg"]), height)))
-
-    # --- start
-    if gravity_init is not None:
-        g = np.asarray(gravity_init, dtype=float)
-    elif gravity_value is not None:
-        g = gravity_value.copy()
-    else:
-        g = None if conf["init"] == "fields" else np.array([0.0, -1.0, 0.0])
-    if focal_init is not None:
-        log_f = float(np.log(focal_init))
-    elif focal_value is not None:
-        log_f = float(np.log(focal_value))
-    else:
-        log_f = None if conf["init"] == "fields" else float(np.log(0.7 * max(width, height)))
-    if g is None or log_f is None:
-        known_focal = None if log_f is None else float(np.exp(log_f))
+def _start(g, focal, field_samples, width, height, conf) -> tuple[np.ndarray, float]:
+    """The refiner's start (unit up vector, log f): a given gravity and focal are kept; the missing ones are
+    read off the fields (``conf["init"]`` "fields") or taken level with f = 0.7·max(w, h) ("level")."""
+    if g is None and conf["init"] != "fields":
+        g = np.array([0.0, -1.0, 0.0])
+    if focal is None and conf["init"] != "fields":
+        focal = 0.7 * max(width, height)
+    if g is None or focal is None:
         g, focal = initial_estimate(
-            up_s, lat_s, cu, cl, x[:n_field], y[:n_field], width, height,
-            gravity=g, focal=known_focal, conf=conf,
-        )  # fmt: skip
-        log_f = float(np.log(focal))
-    g = g / np.linalg.norm(g)
-    log_f = float(np.clip(log_f, log_f_min, log_f_max))
-
-    free = np.array([not fix_gravity, not fix_gravity, not fix_focal])
-    usable = bool(np.any(cu > 0) or np.any(cl > 0))
-    lam = conf["lambda_init"]
-    cost = problem.cost(g, log_f)
-    history = [cost]
-    iterations, converged = 0, False
-    H, grad, _, _ = problem.normal_equations(g, log_f)
-    while usable and iterations < conf["max_iterations"] and free.any():
-        iterations += 1
-        Hf = H[np.ix_(free, free)]
-        A = Hf + lam * np.diag(np.diag(Hf) + 1e-12)
-        try:
-            step_free = -np.linalg.solve(A, grad[free])
-        except np.linalg.LinAlgError:
-            break
-        step = np.zeros(3)
-        step[free] = step_free
-        g_new = retract_on_sphere(g, step[:2]) if free[0] else g
-        log_f_new = float(np.clip(log_f + step[2], log_f_min, log_f_max))
-        new_cost = problem.cost(g_new, log_f_new)
-        if new_cost < cost:
-            decrease = cost - new_cost
-            g, log_f, cost = g_new, log_f_new, new_cost
-            history.append(cost)
-            lam = max(lam * 0.1, 1e-10)
-            H, grad, _, _ = problem.normal_equations(g, log_f)
-            if decrease <= conf["relative_tolerance"] * (cost + decrease) or cost < 1e-24:
-                converged = True
-                break
-        else:
-            lam *= 10.0
-            if lam > conf["lambda_max"]:
-                converged = True  # no step lowers the cost: a minimum to numerical precision
-                break
-
-    # --- uncertainty: the robust (sandwich) covariance of an M-estimator, H⁻¹·M·H⁻¹ with M = Σ gₙgₙᵀ.
-    # Unlike s²·H⁻¹ it stays honest when the Huber weights and confidences make residuals unequal.
-    cov = np.zeros((3, 3))
-    if not usable:
-        cov[np.ix_(free, free)] = np.inf
-    elif free.any():
-        _, _, bread, meat = problem.normal_equations(g, log_f, covariance=True)
-        Bf, Mf = bread[np.ix_(free, free)], meat[np.ix_(free, free)]
-        try:
-            H_inv = np.linalg.inv(Bf)
-            cov[np.ix_(free, free)] = H_inv @ Mf @ H_inv
-        except np.linalg.LinAlgError:
-            cov[np.ix_(free, free)] = np.inf
-    roll_s, pitch_s, vfov_s = np.broadcast_to(np.asarray(conf["sigma_inflation"], dtype=float), (3,))
-    scale = np.array([pitch_s, roll_s, vfov_s])  # in the order of the parameters: pitch, roll, log f
-    cov *= np.outer(scale, scale)
-
-    roll, pitch = roll_pitch_from_gravity(g)
-    f = float(np.exp(log_f))
-    sigma = _sigmas(cov, f, height, float(pitch))
-    return CameraFit(
-        width=int(width),
-        height=int(height),
-        focal_px=f,
-        gravity_up=g,
-        roll_deg=float(np.degrees(roll)),
-        pitch_deg=float(np.degrees(pitch)),
-        vfov_deg=float(np.degrees(vfov_from_focal(f, height))),
-        sigma=sigma,
-        covariance=cov,
-        cost=cost,
-        iterations=iterations,
-        converged=converged,
-        history=history,
-    )
+            *field_samples[2:], *field_samples[:2], width, height, gravity=g, focal=focal, conf=conf
+        )
+    g = np.asarray(g, dtype=float)
+    return g / np.linalg.norm(g), float(np.log(focal))

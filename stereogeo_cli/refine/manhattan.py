@@ -29,6 +29,7 @@ import numpy as np
 
 from stereogeo_cli.geometry.camera import principal_point
 from stereogeo_cli.geometry.gravity import retract_on_sphere, tangent_basis
+from stereogeo_cli.refine.levenberg import Settings, covariance, levenberg_marquardt
 
 default_conf = {
     "enabled": True,
@@ -40,7 +41,7 @@ default_conf = {
     "loss_scale_px": 1.0,  # Cauchy scale of the residuals, in detector pixels
     "focal_starts": (0.6, 0.8, 1.0, 1.25, 1.6),  # starts, as multiples of the fields' focal length
     "yaw_step_deg": 7.5,  # starts of the frame's yaw in [0°, 90°)
-    "iterations": 40,
+    "iterations": 100,  # Levenberg–Marquardt steps tried (refine/levenberg.py)
     # the Hessian's 1-sigma of log f, widened and floored (module docstring; docs/refine.md, "Vanishing
     # points", "Its sigma")
     "sigma_scale": 3.0,
@@ -198,31 +199,17 @@ def manhattan_focal(
         for m in conf["focal_starts"]
         for yaw in np.radians(np.arange(0.0, 90.0, conf["yaw_step_deg"]))
     ]
-    x = min(starts, key=frame.cost)
-    cost, damping = frame.cost(x), 1e-3
-    for _ in range(conf["iterations"]):
-        H, g, _, _ = frame.normal_equations(x)
-        step = np.zeros(4)
-        while damping <= 1e6:
-            try:
-                step = -np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-9), g)
-            except np.linalg.LinAlgError:  # a degenerate frame: stop where it is
-                damping = math.inf
-                break
-            trial = frame.cost(x + step)
-            if trial < cost:
-                x, cost, damping = x + step, trial, max(damping / 3.0, 1e-6)
-                break
-            damping *= 4.0
-        if damping > 1e6 or np.max(np.abs(step)) < 1e-7:
-            break
+    settings = Settings(
+        max_iterations=conf["iterations"], lambda_init=1e-3, lambda_max=1e6, relative_tolerance=0.0,
+        step_tolerance=1e-7,
+    )  # fmt: skip
+    x = levenberg_marquardt(
+        min(starts, key=frame.cost), frame.cost, lambda x: frame.normal_equations(x)[:2], np.add, settings
+    ).x
     if not _LOG_F_RANGE[0] < x[0] < _LOG_F_RANGE[1]:
         return None
     H, _, r, k = frame.normal_equations(x)
-    try:
-        variance = float(np.linalg.inv(H)[0, 0])
-    except np.linalg.LinAlgError:
-        return None
+    variance = float(covariance(H)[0, 0])
     if not (np.isfinite(variance) and variance >= 0):
         return None
     inlier = r < 2.0 * frame.scale

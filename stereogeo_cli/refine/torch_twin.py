@@ -1,9 +1,11 @@
 """The torch twin of the refiner: the same LM maths, batched and unrolled, so training can back-propagate.
 
-It mirrors :mod:`stereogeo_cli.refine.lm` and :mod:`stereogeo_cli.geometry.fields` step for step (tests
-hold them equal). Differences, both for training: a fixed number of steps with no early stop (a rejected
-step is masked with ``torch.where``, which keeps gradients), and a plain squared loss by default
-(``huber_scale=None``), as GeoCalib trains. Only training imports this module.
+It mirrors :mod:`stereogeo_cli.refine.lm`, :mod:`stereogeo_cli.geometry.fields` and the package's one LM
+loop (:func:`stereogeo_cli.refine.levenberg.levenberg_marquardt`: the same damped step, the same
+acceptance, the same damping schedule) step for step; tests hold them equal. Differences, both for
+training: a fixed number of steps with no early stop (a rejected step is masked with ``torch.where``, which
+keeps gradients), and a plain squared loss by default (``huber_scale=None``), as GeoCalib trains. Only
+training imports this module.
 """
 
 from __future__ import annotations
@@ -12,9 +14,11 @@ import math
 
 import torch
 
+from stereogeo_cli.refine.levenberg import DIAGONAL_FLOOR, LAMBDA_DOWN, LAMBDA_FLOOR, LAMBDA_UP
+
 default_conf = {
     "steps": 10,  # unrolled LM steps
-    "lambda_init": 0.1,  # initial damping, ×10 on a rejected step and ×0.1 on an accepted one
+    "lambda_init": 0.1,  # initial damping (the refiner's; the schedule is refine/levenberg.py's)
     "huber_scale": None,  # None: squared loss; a float: the refiner's scaled Huber
     "min_vfov_deg": 5.0,  # log f is clamped so the vFoV stays within these bounds
     "max_vfov_deg": 150.0,
@@ -146,8 +150,9 @@ def refine_batch(
     eye = torch.eye(3, dtype=up.dtype)
     scale = conf["huber_scale"]
     for _ in range(conf["steps"]):
+        # levenberg_marquardt's loop, batched: the damped step, kept where it lowers the cost
         cost, H, grad = _cost_and_normal_equations(g, log_f, data, scale)
-        diag = torch.diagonal(H, dim1=1, dim2=2) + 1e-12
+        diag = torch.diagonal(H, dim1=1, dim2=2) + DIAGONAL_FLOOR
         A = H + lam[:, None, None] * diag[:, None, :] * eye
         step = -torch.linalg.solve(A, grad.unsqueeze(-1)).squeeze(-1)
         g_new = retract_on_sphere(g, step[:, :2], tangent_basis(g))
@@ -155,5 +160,5 @@ def refine_batch(
         accept = _cost(g_new, log_f_new, data, scale) < cost
         g = torch.where(accept[:, None], g_new, g)
         log_f = torch.where(accept, log_f_new, log_f)
-        lam = torch.where(accept, (lam * 0.1).clamp_min(1e-10), lam * 10.0).detach()
+        lam = torch.where(accept, (lam * LAMBDA_DOWN).clamp_min(LAMBDA_FLOOR), lam * LAMBDA_UP).detach()
     return g, torch.exp(log_f)

@@ -1,0 +1,132 @@
+"""The one Levenberg–Marquardt loop of the package: damping, step rejection, stopping and covariance.
+
+Every least-squares fit of the calibration runs through :func:`levenberg_marquardt`: the per-camera
+refiner (``refine/lm.py``), the relative pose's joint refinement (``fuse/pose.py``) and the Manhattan frame
+of the vanishing points (``refine/manhattan.py``). The training loss's differentiable refiner
+(``refine/torch_twin.py``) is the same loop unrolled over a batch, step for step.
+
+A problem gives three functions of its parameters x (any type the problem likes: an array, a tuple, a
+named state):
+
+- ``cost(x)``: the scalar the fit minimises (robust losses included);
+- ``normal_equations(x)``: (H, g), the Gauss–Newton Hessian (with IRLS weights for a robust loss) and the
+  gradient, in the coordinates of a step δ;
+- ``retract(x, δ)``: x moved by δ (a plain sum, or a step on a manifold: the sphere, rotations).
+
+The step solves (H + λ·diag(H))·δ = −g, Marquardt's scaling, so the damping does not depend on the units of
+the parameters. A step is kept only where it lowers the cost; then λ shrinks ×0.1 (floored), otherwise it
+grows ×10 and the step is tried again from the same point. The fit stops after ``max_iterations`` tries
+(kept or not), when a kept step lowers the cost by less than ``relative_tolerance`` of it, when a kept
+step is shorter than ``step_tolerance``, or when λ passes ``lambda_max`` (no step lowers the cost: a
+minimum to numerical precision).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+LAMBDA_DOWN = 0.1  # λ after a kept step
+LAMBDA_UP = 10.0  # λ after a rejected one
+LAMBDA_FLOOR = 1e-10
+DIAGONAL_FLOOR = 1e-12  # keeps the damping positive along a direction the data do not see
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The numbers of one fit; the schedule is the module's."""
+
+    max_iterations: int = 30
+    lambda_init: float = 0.1
+    lambda_max: float = 1e8
+    relative_tolerance: float = 1e-7
+    step_tolerance: float = 0.0
+
+
+@dataclass
+class Result:
+    """Where a fit ended: the parameters, their cost, and H and g there."""
+
+    x: Any
+    cost: float
+    H: np.ndarray
+    gradient: np.ndarray
+    iterations: int  # steps tried, kept or not
+    converged: bool
+    history: list[float] = field(default_factory=list)  # the cost at the start and after every kept step
+
+
+def damped_step(H: np.ndarray, g: np.ndarray, lam: float) -> np.ndarray:
+    """δ solving (H + λ·(diag(H) + ε))·δ = −g; raises ``np.linalg.LinAlgError`` where singular."""
+    return -np.linalg.solve(H + lam * np.diag(np.diag(H) + DIAGONAL_FLOOR), g)
+
+
+def levenberg_marquardt(
+    x0: Any,
+    cost: Callable[[Any], float],
+    normal_equations: Callable[[Any], tuple[np.ndarray, np.ndarray]],
+    retract: Callable[[Any, np.ndarray], Any],
+    settings: Settings = Settings(),
+    free: np.ndarray | None = None,
+) -> Result:
+    """Minimise ``cost`` from ``x0`` (module docstring). ``free``: a boolean mask of the step's coordinates
+    that move (the others are held: their rows and columns are left out of the solve and their step is 0);
+    default all. ``H`` and ``gradient`` in the result are the full ones at the final x."""
+    x, current = x0, float(cost(x0))
+    H, g = normal_equations(x)
+    n = len(g)
+    free = np.ones(n, dtype=bool) if free is None else np.asarray(free, dtype=bool)
+    history, lam, iterations, converged = [current], settings.lambda_init, 0, False
+    while iterations < settings.max_iterations and free.any():
+        iterations += 1
+        try:
+            step_free = damped_step(H[np.ix_(free, free)], g[free], lam)
+        except np.linalg.LinAlgError:
+            break
+        step = np.zeros(n)
+        step[free] = step_free
+        candidate = retract(x, step)
+        new = float(cost(candidate))
+        if new < current:
+            decrease = current - new
+            x, current = candidate, new
+            history.append(current)
+            lam = max(lam * LAMBDA_DOWN, LAMBDA_FLOOR)
+            H, g = normal_equations(x)
+            if (
+                decrease <= settings.relative_tolerance * (current + decrease)
+                or current < 1e-24
+                or np.linalg.norm(step) < settings.step_tolerance
+            ):
+                converged = True
+                break
+        else:
+            lam *= LAMBDA_UP
+            if lam > settings.lambda_max:
+                converged = True
+                break
+    return Result(x, current, H, g, iterations, converged, history)
+
+
+def covariance(bread: np.ndarray, meat: np.ndarray | None = None, free: np.ndarray | None = None):
+    """The covariance of a fit's parameters: ``bread``⁻¹ (the inverse Hessian, for residuals in units of
+    their sigmas) or, with ``meat`` = Σ gₙgₙᵀ over the observations' gradients, the robust sandwich
+    bread⁻¹·meat·bread⁻¹ of an M-estimator, which stays honest where the loss and the weights make the
+    residuals unequal. Held coordinates (``free`` False) get 0; a singular bread gives inf on the free ones.
+    """
+    n = len(bread)
+    free = np.ones(n, dtype=bool) if free is None else np.asarray(free, dtype=bool)
+    cov = np.zeros((n, n))
+    if not free.any():
+        return cov
+    sel = np.ix_(free, free)
+    try:
+        inverse = np.linalg.inv(bread[sel])
+    except np.linalg.LinAlgError:
+        cov[sel] = np.inf
+        return cov
+    cov[sel] = inverse if meat is None else inverse @ meat[sel] @ inverse
+    return cov
