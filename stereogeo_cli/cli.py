@@ -253,38 +253,38 @@ def _print_summary(result, console) -> None:
             " ".join(f"{report[side]['dist'][i]:+.3f}" for i in (0, 1, 4)) for side in ("left", "right")
         ))  # fmt: skip
     console.print(table)
-    for side, prior in zip(("left", "right"), report.get("focal_prior") or (), strict=False):
-        if prior and prior["source"] == "exif":
-            unit = "mm (35 mm equiv.)" if prior["tag"] == "FocalLengthIn35mmFilm" else "mm"
+    for side, source in zip(("left", "right"), result.focal_sources, strict=True):
+        if source is not None and source.source == "exif":
+            unit = "mm (35 mm equiv.)" if source.tag == "FocalLengthIn35mmFilm" else "mm"
             console.print(
-                f"{side} focal: EXIF {prior['tag_mm']:g} {unit} = {prior['focal_px']:.0f} px, with the "
-                f"fields' {prior['fields_focal_px']:.0f} px"
+                f"{side} focal: EXIF {source.tag_mm:g} {unit} = {source.focal_px:.0f} px, with the "
+                f"fields' {source.fields_focal_px:.0f} px"
             )
-        elif prior and prior["source"] == "lines":
+        elif source is not None and source.source == "lines":
             console.print(
-                f"{side} focal: the fields' {prior['fields_focal_px']:.0f} px with the vanishing points' "
-                f"{prior['focal_px']:.0f} ± {prior['sigma_px']:.0f} px"
+                f"{side} focal: the fields' {source.fields_focal_px:.0f} px with the vanishing points' "
+                f"{source.focal_px:.0f} ± {source.sigma_px:.0f} px"
             )
-        elif prior:
+        elif source is not None:
             console.print(
-                f"{side} focal: given {prior['focal_px']:.0f} ± {prior['sigma_px']:.0f} px, with the fields' "
-                f"{prior['fields_focal_px']:.0f} px"
+                f"{side} focal: given {source.focal_px:.0f} ± {source.sigma_px:.0f} px, with the fields' "
+                f"{source.fields_focal_px:.0f} px"
             )
-    pose = report["pose"]
-    if pose.get("equal_focals"):
+    pose = result.pose
+    if pose.equal_focals:
         console.print("focal lengths held equal: the matches could not tell the two cameras apart")
-    from stereogeo_cli.geometry import axis_angle_from_rotation
+    from stereogeo_cli.geometry import axis_angle_from_rotation, rotation_angle
 
-    rotvec = np.degrees(axis_angle_from_rotation(np.array(report["R"])))
-    sigma_r = f" ± {pose['sigma_rotation_deg']:.2f}°" if pose["sigma_rotation_deg"] is not None else ""
+    rotvec = np.degrees(axis_angle_from_rotation(result.calibration.R))
+    sigma_r = f" ± {pose.sigma_rotation_deg:.2f}°" if np.isfinite(pose.sigma_rotation_deg) else ""
     console.print(
-        f"R: {pose['rotation_deg']:.2f}°{sigma_r} (rotation vector {rotvec[0]:+.2f}°, {rotvec[1]:+.2f}°, "
-        f"{rotvec[2]:+.2f}°), from {pose['source'].replace('_', ' ')}"
+        f"R: {np.degrees(rotation_angle(result.calibration.R)):.2f}°{sigma_r} (rotation vector "
+        f"{rotvec[0]:+.2f}°, {rotvec[1]:+.2f}°, {rotvec[2]:+.2f}°), from {pose.source.replace('_', ' ')}"
     )
-    T = report["T"]
+    T, baseline_sigma = report["T"], report["pose"].get("sigma_baseline_rel")
     console.print(
         f"T: ({T[0]:+.4f}, {T[1]:+.4f}, {T[2]:+.4f}) m, baseline {report['baseline_m']:.4f} m"
-        + (f" ± {100 * pose['sigma_baseline_rel']:.0f} %" if pose.get("sigma_baseline_rel") else "")
+        + (f" ± {100 * baseline_sigma:.0f} %" if baseline_sigma else "")
         + f" ({'given' if report['scale_source'] == 'baseline' else 'learned scale'})"
     )
     segments = report.get("vertical_segments") or [0, 0]
@@ -376,20 +376,7 @@ def calibrate(
     threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core).")] = 0,
 ) -> None:
     """Calibrate a stereo camera from one image pair: focal lengths, gravity (roll, pitch), R and T."""
-    for name, value in (
-        ("--baseline", baseline),
-        ("--focal-left", focal_left),
-        ("--focal-right", focal_right),
-    ):
-        if value is not None and not (value > 0 and np.isfinite(value)):
-            raise StereoGeoError(f"{name} must be a positive number, got {value}")
-    if focal_sigma is not None:
-        if not (0 < focal_sigma < 1):
-            raise StereoGeoError(f"--focal-sigma must be a fraction between 0 and 1, got {focal_sigma}")
-        if focal_left is None and focal_right is None:
-            raise StereoGeoError("--focal-sigma needs --focal-left or --focal-right")
-    if threads < 0:
-        raise StereoGeoError("--threads must be 0 or more")
+    _check_calibrate_options(baseline, focal_left, focal_right, focal_sigma, threads)
     names = _formats(formats)
     if output is not None:
         _check_output_folder(output)
@@ -418,6 +405,24 @@ def calibrate(
     console = Console()
     _print_summary(result, console)
     _print_written(console, written)
+
+
+def _check_calibrate_options(baseline, focal_left, focal_right, focal_sigma, threads) -> None:
+    """``calibrate``'s numbers, checked before any work: a bad one is a usage error (exit code 2)."""
+    for name, value in (
+        ("--baseline", baseline),
+        ("--focal-left", focal_left),
+        ("--focal-right", focal_right),
+    ):
+        if value is not None and not (value > 0 and np.isfinite(value)):
+            raise StereoGeoError(f"{name} must be a positive number, got {value}")
+    if focal_sigma is not None:
+        if not (0 < focal_sigma < 1):
+            raise StereoGeoError(f"--focal-sigma must be a fraction between 0 and 1, got {focal_sigma}")
+        if focal_left is None and focal_right is None:
+            raise StereoGeoError("--focal-sigma needs --focal-left or --focal-right")
+    if threads < 0:
+        raise StereoGeoError("--threads must be 0 or more")
 
 
 def _print_written(console, written: list[Path]) -> None:

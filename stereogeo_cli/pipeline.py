@@ -20,15 +20,13 @@ import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.fuse import Matches, RelativePose, fuse_relative_pose, match_features, share_gravity
+from stereogeo_cli.fuse.assemble import CameraEstimate, assemble, focal_sigmas
 from stereogeo_cli.fuse.pose import default_conf as fuse_conf
 from stereogeo_cli.fuse.scale import DepthField, baseline_from_depth
 from stereogeo_cli.fuse.scale import default_conf as scale_conf
 from stereogeo_cli.geometry import (
-    corner_radius,
     intrinsic_matrix,
-    opencv_from_division,
     principal_point,
-    rotation_angle,
     undistort_division,
 )
 from stereogeo_cli.io import StereoCalibration
@@ -112,6 +110,9 @@ class CalibrationResult:
     pose: RelativePose
     warnings: list[str] = field(default_factory=list)
     matches: Matches | None = None  # all feature matches (batch-calibrate --same-rig pools them)
+    # per camera, where its focal length came from when not from the fields alone (None: the fields', or
+    # held where given)
+    focal_sources: tuple[FocalCombination | None, FocalCombination | None] = (None, None)
 
     def report(self) -> dict:
         """The JSON report (docs/io.md), with the pose's provenance and any warnings."""
@@ -152,7 +153,7 @@ class CalibrationResult:
         matches = None if self.matches is None else Matches(self.matches.right, self.matches.left)
         return replace(
             self, calibration=calibration, left=self.right, right=self.left, pose=mirrored_pose,
-            matches=matches,
+            matches=matches, focal_sources=self.focal_sources[::-1],
         )  # fmt: skip
 
 
@@ -167,10 +168,38 @@ def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def _focal_from_fields(prior: dict | None, held: float | None) -> bool:
+@dataclass(frozen=True)
+class FocalCombination:
+    """Where a camera's focal length came from when it is not the fields' alone: their read combined in
+    log f with another, an EXIF tag (``source`` "exif"), a focal length given with a sigma ("given"), or
+    the vanishing points of the image's straight edges ("lines")."""
+
+    source: str
+    focal_px: float  # the other read, and its 1-sigma
+    sigma_px: float
+    fields_focal_px: float  # what the fields alone read, and its 1-sigma
+    fields_sigma_px: float
+    combined_focal_px: float  # the two combined, before the feature matches refine it
+    tag: str | None = None  # the EXIF tag and its value in millimetres
+    tag_mm: float | None = None
+    segments: tuple[int, int, int] | None = None  # the edges' segments along the frame's three directions
+
+    def to_report(self) -> dict:
+        """The report's ``focal_prior`` entry (docs/io.md)."""
+        entry = {
+            "source": self.source, "tag": self.tag, "tag_mm": self.tag_mm, "focal_px": self.focal_px,
+            "sigma_px": self.sigma_px, "fields_focal_px": self.fields_focal_px,
+            "fields_sigma_px": _finite(self.fields_sigma_px), "combined_focal_px": self.combined_focal_px,
+        }  # fmt: skip
+        if self.segments is not None:
+            entry["segments"] = list(self.segments)
+        return entry
+
+
+def _focal_from_fields(prior: FocalCombination | None, held: float | None) -> bool:
     """Whether a camera's focal length is the network's read (alone, or combined with its straight edges')
     rather than one the user or EXIF gave: its reported sigma is widened by photo_sigma_scale then."""
-    return held is None and (prior is None or prior["source"] == "lines")
+    return held is None and (prior is None or prior.source == "lines")
 
 
 def _no_lens(lens: PlumbLens | None, sigmas: float) -> bool:
@@ -228,7 +257,7 @@ class _PairWork:
     timing: dict[str, float]  # milliseconds per stage
     fits: list = field(default_factory=lambda: [None, None])  # CameraFit, in original pixels
     held: list = field(default_factory=lambda: [None, None])  # focal lengths held fixed (given, no sigma)
-    priors: list = field(default_factory=lambda: [None, None])  # the report's focal_prior entries
+    priors: list = field(default_factory=lambda: [None, None])  # FocalCombination or None
     warnings: list[str] = field(default_factory=list)
     segments: list | None = None  # each image's line segments (original pixels); None: lines off
     edge_lens: list = field(default_factory=lambda: [None, None])  # PlumbLens the edges show, or None
@@ -296,25 +325,23 @@ class Calibrator:
         disagree: ``_lines_spread``), as is the conf's ``camera_bias_sigma`` for a focal length read from the
         images."""
         roll, pitch, vfov = self.photo_sigma_scale
-        sigma = {**fit.sigma, "roll_deg": fit.sigma["roll_deg"] * roll}
-        sigma["pitch_deg"] = fit.sigma["pitch_deg"] * pitch
-        if focal_from_fields:
-            sigma.update(focal_px=fit.sigma["focal_px"] * vfov, vfov_deg=fit.sigma["vfov_deg"] * vfov)
-        relative = sigma["focal_px"] / fit.focal_px
+        sigma = fit.sigma
+        relative = sigma["focal_px"] / fit.focal_px * (vfov if focal_from_fields else 1.0)
         if focal_from_fields:
             spread_rel = math.hypot(spread_rel, self.conf["camera_bias_sigma"])
-        if spread_rel > 0 and math.isfinite(relative) and relative > 0:
-            widen = math.hypot(relative, spread_rel) / relative
-            sigma.update(focal_px=sigma["focal_px"] * widen, vfov_deg=sigma["vfov_deg"] * widen)
-        return sigma
+        return {
+            **focal_sigmas(fit.focal_px, fit.height, relative, spread_rel),
+            "roll_deg": sigma["roll_deg"] * roll,
+            "pitch_deg": sigma["pitch_deg"] * pitch,
+        }
 
-    def _lines_spread(self, prior: dict | None) -> float:
+    def _lines_spread(self, prior: FocalCombination | None) -> float:
         """For a focal length combined with its straight edges': the conf's ``report_spread`` times the two
         reads' distance in log f (0 otherwise). Where fields and edges disagree, the truth is uncertain by
         about as much, whatever their sigmas say (docs/refine.md, "Vanishing points")."""
-        if prior is None or prior["source"] != "lines":
+        if prior is None or prior.source != "lines":
             return 0.0
-        apart = abs(math.log(prior["focal_px"] / prior["fields_focal_px"]))
+        apart = abs(math.log(prior.focal_px / prior.fields_focal_px))
         return self.conf["manhattan"]["report_spread"] * apart
 
     def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:
@@ -333,7 +360,7 @@ class Calibrator:
 
     def _refine_with_prior(
         self, view: ViewFields, name: str, known_focal: float | None, prior: FocalPrior | None
-    ) -> tuple[CameraFit, dict | None, str | None]:
+    ) -> tuple[CameraFit, FocalCombination | None, str | None]:
         """One camera's fit, its focal length combined with a ``prior`` (from EXIF, or given with a sigma)
         where there is one and no known focal: (fit, the report's entry for the prior or None, a warning or
         None).
@@ -364,16 +391,10 @@ class Calibrator:
                 f"the {name} {what} ({prior.focal_px:.0f} px) and its fields ({fit.focal_px:.0f} px) "
                 f"disagree by {100 * (math.exp(apart) - 1):.0f} %{advice}"
             )
-        entry = {
-            "source": prior.source,
-            "tag": prior.tag,
-            "tag_mm": prior.value_mm,
-            "focal_px": prior.focal_px,
-            "sigma_px": prior.sigma_px,
-            "fields_focal_px": fit.focal_px,  # what the fields alone read, and its 1-sigma
-            "fields_sigma_px": _finite(fit.sigma["focal_px"]),
-            "combined_focal_px": focal,  # the two combined, before the feature matches refine it
-        }
+        entry = FocalCombination(
+            prior.source, prior.focal_px, prior.sigma_px, fit.focal_px, fit.sigma["focal_px"], focal,
+            tag=prior.tag, tag_mm=prior.value_mm,
+        )  # fmt: skip
         return combined, entry, warning
 
     def _fuse(
@@ -453,7 +474,7 @@ class Calibrator:
 
     def _with_manhattan(
         self, view: ViewFields, fit: CameraFit, found: ManhattanFocal
-    ) -> tuple[CameraFit, dict | None]:
+    ) -> tuple[CameraFit, FocalCombination | None]:
         """``fit`` with its focal length combined with ``found``, the one a Manhattan frame of the image's
         straight edges gives, where the two agree within the conf's ``gate_sigmas``: (fit, the report's
         entry or None).
@@ -471,17 +492,10 @@ class Calibrator:
         focal, sigma = combine_focal(
             fit.focal_px, fields_sigma * fit.focal_px, found.focal_px, found.sigma_rel * found.focal_px
         )
-        entry = {
-            "source": "lines",
-            "tag": None,
-            "tag_mm": None,
-            "focal_px": found.focal_px,
-            "sigma_px": found.sigma_rel * found.focal_px,
-            "fields_focal_px": fit.focal_px,
-            "fields_sigma_px": fields_sigma * fit.focal_px,
-            "combined_focal_px": focal,
-            "segments": list(found.families),  # along the frame's two horizontal directions and the vertical
-        }
+        entry = FocalCombination(
+            "lines", found.focal_px, found.sigma_rel * found.focal_px, fit.focal_px,
+            fields_sigma * fit.focal_px, focal, segments=tuple(found.families),
+        )  # fmt: skip
         return self._held_at(view, focal, sigma), entry
 
     def _with_lines(
@@ -694,7 +708,7 @@ class Calibrator:
             ):
                 work.fits[side], work.priors[side] = self._with_manhattan(view, work.fits[side], reads[side])
         work.timing["manhattan"] += (time.perf_counter() - tick) * 1e3
-        if any(prior is not None and prior["source"] == "lines" for prior in work.priors):
+        if any(prior is not None and prior.source == "lines" for prior in work.priors):
             self._fuse_pose(work)
 
     def _fit_gravity(self, work: _PairWork) -> None:
@@ -754,69 +768,47 @@ class Calibrator:
         return baseline, ("learned", source, sigma)
 
     def _assemble(self, work: _PairWork, baseline: float, baseline_info: tuple) -> CalibrationResult:
-        """Stage 8: the calibration to write and report, from the stages' results."""
-        fit_left, fit_right = work.fits
-        pose, priors, held, warnings = work.pose, work.priors, work.held, work.warnings
+        """Stage 8: the calibration to write and report, from the stages' results (``fuse/assemble.py``)."""
+        fits, pose, priors, held = work.fits, work.pose, work.priors, work.held
         scale_source, baseline_source, baseline_sigma = baseline_info
-        K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
-        K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
-        D_left, D_right = (
-            opencv_from_division(k, corner_radius(K))
-            for k, K in zip(pose.distortion, (K_left, K_right), strict=True)
+        cameras = tuple(
+            CameraEstimate(
+                fit.focal_px,
+                fit.width,
+                fit.height,
+                fit.gravity_up,
+                self.reported_sigma(fit, _focal_from_fields(prior, known), self._lines_spread(prior)),
+            )  # fmt: skip
+            for fit, prior, known in zip(fits, priors, held, strict=True)
         )
         # the edges' lens in the final K's coordinates, as the fusion's k is reported
         edge_k = [
-            None if lens is None else lens.division_k(K[0, 0])
-            for lens, K in zip(work.edge_lens, (K_left, K_right), strict=True)
+            None if lens is None else lens.division_k(camera.focal_px)
+            for lens, camera in zip(work.edge_lens, cameras, strict=True)
         ]
-        calibration = StereoCalibration(
-            K_left=K_left, K_right=K_right,
-            image_size_left=(fit_left.width, fit_left.height),
-            image_size_right=(fit_right.width, fit_right.height),
-            R=pose.R, T=pose.translation(baseline), D_left=D_left, D_right=D_right,
-            gravity_left=fit_left.gravity_up, gravity_right=fit_right.gravity_up,
-            sigma_left=self.reported_sigma(
-                fit_left, _focal_from_fields(priors[0], held[0]), self._lines_spread(priors[0])
-            ),
-            sigma_right=self.reported_sigma(
-                fit_right, _focal_from_fields(priors[1], held[1]), self._lines_spread(priors[1])
-            ),
-            scale_source=scale_source, matches_found=pose.matches_found, matches_inliers=pose.inliers,
-            timing_ms=work.timing, model_file=self.model_path.name, model_sha256=self.network.model_sha256,
-            notes="; ".join(warnings),
-            extra_report={
-                "pose": {
-                    "source": pose.source,
-                    "sigma_rotation_deg": _finite(pose.sigma_rotation_deg),
-                    "sigma_direction_deg": _finite(pose.sigma_direction_deg),
-                    "gravity_error_deg": pose.gravity_error_deg,
-                    "rotation_deg": float(np.degrees(rotation_angle(pose.R))),
-                    # the two focal lengths held equal: the matches could not tell their ratio from 1 (or,
-                    # with too few matches, the fields read them alike)
-                    "equal_focals": pose.equal_focals,
-                    # a turned rig's matches refined the two focal lengths' common scale: its relative 1-sigma
-                    # from the matches (None: not refined, the images' read of the focal lengths stands)
-                    "sigma_common_focal_rel": pose.sigma_common_focal,
-                    # the fitted radial distortion: division-model k per camera (left, right) and its sigma
-                    "distortion_k": [float(k) for k in pose.distortion],
-                    "sigma_distortion_k": [_finite(s) for s in pose.sigma_distortion],
-                    # the lens each image's straight edges show, in the same units, with its 1-sigma (None:
-                    # too few long edges, or they disagree); it weighed in the choice of a lens
-                    "edge_distortion_k": [None if k is None else float(k[0]) for k in edge_k],
-                    "sigma_edge_distortion_k": [None if k is None else float(k[1]) for k in edge_k],
-                    # where a learned baseline came from: "depth" (the matches with the depth head's depth,
-                    # stereogeo_cli/fuse/scale.py) or "pose_head"; None when given
-                    "baseline_source": baseline_source,
-                    # the pose head's own learned length of T in metres (a second opinion; the network's)
-                    "head_baseline_m": _finite(float(np.linalg.norm(work.net.translation))),
-                    # relative 1-sigma of a learned baseline (the model's validation figure); None when given
-                    "sigma_baseline_rel": baseline_sigma,
-                },
-                # each camera's EXIF focal length, where one was combined with the fields' (left, right)
-                "focal_prior": priors,
-                # vertical line segments each camera's gravity was fitted with (left, right)
-                "vertical_segments": work.used,
-                "warnings": list(warnings),
-            },
+        more_pose = {
+            # the lens each image's straight edges show, in the same units, with its 1-sigma (None: too few
+            # long edges, or they disagree); it weighed in the choice of a lens
+            "edge_distortion_k": [None if k is None else float(k[0]) for k in edge_k],
+            "sigma_edge_distortion_k": [None if k is None else float(k[1]) for k in edge_k],
+            # where a learned baseline came from: "depth" (the matches with the depth head's depth,
+            # stereogeo_cli/fuse/scale.py) or "pose_head"; None when given
+            "baseline_source": baseline_source,
+            # the pose head's own learned length of T in metres (a second opinion; the network's)
+            "head_baseline_m": _finite(float(np.linalg.norm(work.net.translation))),
+            # relative 1-sigma of a learned baseline (the model's validation figure); None when given
+            "sigma_baseline_rel": baseline_sigma,
+        }
+        more = {
+            # each camera's EXIF focal length, where one was combined with the fields' (left, right)
+            "focal_prior": [None if prior is None else prior.to_report() for prior in priors],
+            # vertical line segments each camera's gravity was fitted with (left, right)
+            "vertical_segments": work.used,
+        }
+        calibration = assemble(
+            cameras, pose, baseline, scale_source, (self.model_path.name, self.network.model_sha256),
+            work.warnings, more_pose=more_pose, more=more, timing_ms=work.timing,
         )  # fmt: skip
-        return CalibrationResult(calibration, fit_left, fit_right, pose, warnings, work.matches)
+        return CalibrationResult(
+            calibration, fits[0], fits[1], pose, work.warnings, work.matches, (priors[0], priors[1])
+        )

@@ -108,21 +108,19 @@ class PairOutcome:
 def _evidence(result) -> RigEvidence:
     matches = result.matches
     empty = np.zeros((0, 2))
-    priors = result.calibration.extra_report.get("focal_prior") or [None, None]
     focal, sigma, prior = [], [], []
-    for fit, entry in zip((result.left, result.right), priors, strict=True):
-        fields_sigma = None if entry is None else entry.get("fields_sigma_px")
+    for fit, source in zip((result.left, result.right), result.focal_sources, strict=True):
         # a focal length combined with its straight edges' is the pair's own evidence, as the fields' alone is
         # (each pair's edges are another scene's; an EXIF prior is one camera's tags, counted once)
-        if entry is None or fields_sigma is None or entry.get("source") == "lines":
+        if source is None or not math.isfinite(source.fields_sigma_px) or source.source == "lines":
             focal.append(fit.focal_px)
             sigma.append(fit.sigma["focal_px"])
             prior.append(None)
         else:  # the fields' own reading, scaled by what the matches did to the combined focal
-            scale = fit.focal_px / entry["combined_focal_px"]
-            focal.append(entry["fields_focal_px"] * scale)
-            sigma.append(fields_sigma * scale)
-            prior.append((entry["focal_px"], entry["sigma_px"]))
+            scale = fit.focal_px / source.combined_focal_px
+            focal.append(source.fields_focal_px * scale)
+            sigma.append(source.fields_sigma_px * scale)
+            prior.append((source.focal_px, source.sigma_px))
     return RigEvidence(
         size_left=(result.left.width, result.left.height),
         size_right=(result.right.width, result.right.height),

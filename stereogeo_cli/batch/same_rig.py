@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from stereogeo_cli.batch.discovery import PairEntry
-from stereogeo_cli.batch.run import PairJob, PairOutcome, RigEvidence, _finite, _Progress, _run_pass
+from stereogeo_cli.batch.run import PairJob, PairOutcome, RigEvidence, _Progress, _run_pass
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.pipeline import calibrator_conf
 
@@ -148,23 +148,15 @@ def calibrate_rig(
     focal length read from the images: the pipeline's ``camera_bias_sigma``).
     """
     from stereogeo_cli.fuse import fuse_relative_pose
-    from stereogeo_cli.geometry import (
-        corner_radius,
-        gravity_angle,
-        intrinsic_matrix,
-        opencv_from_division,
-        roll_pitch_from_gravity,
-        rotation_angle,
-    )
-    from stereogeo_cli.io import StereoCalibration
+    from stereogeo_cli.fuse.assemble import CameraEstimate, assemble, focal_sigmas
+    from stereogeo_cli.geometry import intrinsic_matrix
 
     ok = [o for o in second if o.status == "ok"]
     if not ok:
         raise CalibrationFailed("--same-rig: no pair could be calibrated with the combined focal lengths")
     ev = [o.evidence for o in ok]
-    (w_l, h_l), (w_r, h_r) = ev[0].size_left, ev[0].size_right
-    K_left = intrinsic_matrix(focals[0].focal_px, w_l, h_l)
-    K_right = intrinsic_matrix(focals[1].focal_px, w_r, h_r)
+    sizes = ev[0].size_left, ev[0].size_right
+    K_left, K_right = (intrinsic_matrix(est.focal_px, *size) for est, size in zip(focals, sizes, strict=True))
     pooled, counts = pool_matches(ev, K_left, K_right)
     t_mean = np.sum([e.t_direction for e in ev], axis=0)
     pose = fuse_relative_pose(
@@ -178,19 +170,43 @@ def calibrate_rig(
         replace(est, focal_px=est.focal_px * scale, sigma_px=est.sigma_px * scale)
         for est, scale in zip(focals, pose.focal_scale, strict=True)
     )
-    K_left = intrinsic_matrix(focals[0].focal_px, w_l, h_l)
-    K_right = intrinsic_matrix(focals[1].focal_px, w_r, h_r)
-    D_left, D_right = (
-        opencv_from_division(k, corner_radius(K))
-        for k, K in zip(pose.distortion, (K_left, K_right), strict=True)
+    # each camera's gravity is its own in every pair ("pairs"); the focal lengths' sigmas are reported as a
+    # single pair's are (Calibrator.reported_sigma: ``focal_sigma_scale`` and ``focal_bias_sigma``)
+    cameras = tuple(
+        CameraEstimate(
+            est.focal_px,
+            width,
+            height,
+            None,
+            focal_sigmas(est.focal_px, height, est.sigma_px * scale / est.focal_px, bias),
+        )  # fmt: skip
+        for est, (width, height), scale, bias in zip(
+            focals, sizes, focal_sigma_scale, focal_bias_sigma, strict=True
+        )
     )
     if baseline_m is not None:
         baseline, scale_source = float(baseline_m), "baseline"
     else:
         baseline = float(np.median([o.evidence.baseline_m for o in first if o.status == "ok"]))
         scale_source = "learned"
+    notes = [
+        f"joint calibration of {len(ok)} pairs; gravity per pair in 'pairs'",
+        f"focal from {int(focals[0].used.sum())} (left) and {int(focals[1].used.sum())} (right) pairs",
+    ]
+    return assemble(
+        cameras, pose, baseline, scale_source, model, list(pose.notes), notes=notes,
+        more={"pairs": _pair_gravity(ok, counts, pose)},
+    )  # fmt: skip
+
+
+def _pair_gravity(ok: Sequence[PairOutcome], counts, pose) -> list[dict[str, Any]]:
+    """The report's ``pairs``: per pair its pooled matches, each camera's gravity, and how well the rig's R
+    carries one camera's gravity onto the other's."""
+    from stereogeo_cli.geometry import gravity_angle, roll_pitch_from_gravity
+
     pairs = []
-    for o, e, n in zip(ok, ev, counts, strict=True):
+    for o, n in zip(ok, counts, strict=True):
+        e = o.evidence
         entry: dict[str, Any] = {"name": o.name, "pooled_matches": n}
         for side, g in (("left", e.gravity_left), ("right", e.gravity_right)):
             roll, pitch = roll_pitch_from_gravity(g)
@@ -199,36 +215,7 @@ def calibrate_rig(
         coupling = gravity_angle(pose.R @ e.gravity_left, e.gravity_right)  # how well R·g_left = g_right
         entry["gravity_error_deg"] = math.degrees(float(coupling))
         pairs.append(entry)
-
-    def sigma(est: FocalEstimate, height: int, scale: float, bias: float) -> dict[str, float]:
-        dvfov = height * est.focal_px / (est.focal_px**2 + height * height / 4.0)  # d vfov / d log f
-        s = math.hypot(est.sigma_px * scale / est.focal_px, bias) * est.focal_px
-        return {"focal_px": s, "vfov_deg": math.degrees(dvfov * s / est.focal_px)}
-
-    notes = list(pose.notes) + [
-        f"joint calibration of {len(ok)} pairs; gravity per pair in 'pairs'",
-        f"focal from {int(focals[0].used.sum())} (left) and {int(focals[1].used.sum())} (right) pairs",
-    ]
-    return StereoCalibration(
-        K_left=K_left, K_right=K_right, image_size_left=(w_l, h_l), image_size_right=(w_r, h_r),
-        R=pose.R, T=pose.translation(baseline), D_left=D_left, D_right=D_right,
-        sigma_left=sigma(focals[0], h_l, focal_sigma_scale[0], focal_bias_sigma[0]),
-        sigma_right=sigma(focals[1], h_r, focal_sigma_scale[1], focal_bias_sigma[1]),
-        scale_source=scale_source, matches_found=pose.matches_found, matches_inliers=pose.inliers,
-        model_file=model[0], model_sha256=model[1], notes="; ".join(notes),
-        extra_report={
-            "pose": {
-                "source": pose.source,
-                "sigma_rotation_deg": _finite(pose.sigma_rotation_deg),
-                "sigma_direction_deg": _finite(pose.sigma_direction_deg),
-                "rotation_deg": math.degrees(rotation_angle(pose.R)),
-                "distortion_k": [float(k) for k in pose.distortion],
-                "sigma_distortion_k": [_finite(s) for s in pose.sigma_distortion],
-            },
-            "pairs": pairs,
-            "warnings": list(pose.notes),
-        },
-    )  # fmt: skip
+    return pairs
 
 
 # ---------------------------------------------------------------------------------------------- the batch

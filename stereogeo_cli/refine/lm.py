@@ -123,7 +123,7 @@ class CameraFit:
         }
 
 
-def _vfov_sigma_deg(focal: float, height: float, log_focal_sigma: float) -> float:
+def vfov_sigma_deg(focal: float, height: float, log_focal_sigma: float) -> float:
     """1-sigma of the vFoV in degrees from that of log f: |d vFoV / d log f| = h·f / (f² + h²/4)."""
     return float(np.degrees(height * focal / (focal * focal + height * height / 4.0) * log_focal_sigma))
 
@@ -133,7 +133,7 @@ def _sigmas(cov: np.ndarray, focal: float, height: float, pitch: float) -> dict[
     sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
     return {
         "focal_px": float(focal * sig[2]),
-        "vfov_deg": _vfov_sigma_deg(focal, height, sig[2]),
+        "vfov_deg": vfov_sigma_deg(focal, height, sig[2]),
         "roll_deg": float(np.degrees(sig[1] / max(np.cos(pitch), 1e-9))),
         "pitch_deg": float(np.degrees(sig[0])),
     }

@@ -135,6 +135,31 @@ def _chain_points(segments: np.ndarray, members: np.ndarray, step: float) -> np.
     return start[owner] + fraction[:, None] * (end - start)[owner]
 
 
+def _long_edges(segments, size, center, detector_scale, conf) -> list[np.ndarray]:
+    """The image's long edges: the longest segments away from the border, linked into chains that span
+    ``min_span`` of the diagonal or more; each chain's points relative to the distortion ``center``."""
+    width, height = size
+    diagonal = float(np.hypot(width, height))
+    segments = np.asarray(segments, dtype=float).reshape(-1, 4)
+    length = np.linalg.norm(segments[:, 2:] - segments[:, :2], axis=1)
+    margin = conf["border_px"] * detector_scale
+    xs, ys = segments[:, [0, 2]], segments[:, [1, 3]]
+    inside = (np.minimum(xs, width - 1 - xs).min(axis=1) > margin) & (
+        np.minimum(ys, height - 1 - ys).min(axis=1) > margin
+    )
+    keep = np.flatnonzero((length >= conf["min_segment"] * diagonal) & inside)
+    keep = keep[np.argsort(-length[keep], kind="stable")[: conf["max_segments"]]]
+    segments = segments[keep]
+    chains = []
+    for members in link_chains(segments, diagonal, conf):
+        points = _chain_points(segments, members, 0.005 * diagonal)
+        centred = points - points.mean(axis=0)
+        direction = np.linalg.svd(centred, full_matrices=False)[2][0]
+        if np.ptp(centred @ direction) >= conf["min_span"] * diagonal:
+            chains.append(points - np.asarray(center, dtype=float))
+    return chains
+
+
 def plumb_line_distortion(
     segments: np.ndarray,
     size: tuple[int, int],
@@ -153,26 +178,8 @@ def plumb_line_distortion(
             border margin and the misfit clip are in detector pixels.
     """
     conf = {**default_conf, **(conf or {})}
-    width, height = size
-    diagonal = float(np.hypot(width, height))
-    corner = 0.5 * diagonal
-    segments = np.asarray(segments, dtype=float).reshape(-1, 4)
-    length = np.linalg.norm(segments[:, 2:] - segments[:, :2], axis=1)
-    margin = conf["border_px"] * detector_scale
-    xs, ys = segments[:, [0, 2]], segments[:, [1, 3]]
-    inside = (np.minimum(xs, width - 1 - xs).min(axis=1) > margin) & (
-        np.minimum(ys, height - 1 - ys).min(axis=1) > margin
-    )
-    keep = np.flatnonzero((length >= conf["min_segment"] * diagonal) & inside)
-    keep = keep[np.argsort(-length[keep], kind="stable")[: conf["max_segments"]]]
-    segments = segments[keep]
-    chains = []
-    for members in link_chains(segments, diagonal, conf):
-        points = _chain_points(segments, members, 0.005 * diagonal)
-        centred = points - points.mean(axis=0)
-        direction = np.linalg.svd(centred, full_matrices=False)[2][0]
-        if np.ptp(centred @ direction) >= conf["min_span"] * diagonal:
-            chains.append(points - np.asarray(center, dtype=float))
+    corner = 0.5 * float(np.hypot(*size))
+    chains = _long_edges(segments, size, center, detector_scale, conf)
     if len(chains) < conf["min_chains"]:
         return None
     low, high = conf["stretch_range"]
