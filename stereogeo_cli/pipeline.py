@@ -15,6 +15,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -266,6 +267,16 @@ class _PairWork:
     used: list[int] = field(default_factory=lambda: [0, 0])  # vertical segments in each gravity fit
 
 
+class _Baseline(NamedTuple):
+    """The length of T and where it came from: ``scale_source`` "baseline" (given) or "learned", and for a
+    learned one ``source`` ("depth" or "pose_head") and its relative 1-sigma ``sigma_rel``."""
+
+    metres: float
+    scale_source: str
+    source: str | None
+    sigma_rel: float | None
+
+
 class Calibrator:
     """Calibrates stereo pairs with one network session.
 
@@ -504,12 +515,12 @@ class Calibrator:
         fit: CameraFit,
         segments: np.ndarray,
         k: float,
-        known_focal: float | None,
+        focal: float | None,
     ) -> tuple[CameraFit, int]:
         """``fit`` with the gravity of its fields and the image's line ``segments`` (original pixels; the
         vertical ones are chosen in refine/lines.py), the lens distortion ``k`` (division model in the
-        normalised coordinates of ``fit``'s K, as the fusion gives it) taken out of them first; the focal
-        stays."""
+        normalised coordinates of ``fit``'s K, as the fusion gives it) taken out of them first; the gravity is
+        fitted with the focal length held at ``focal`` (original pixels; None: free), which stays."""
         lines = self.conf["lines"]
         K = intrinsic_matrix(fit.focal_px, fit.width, fit.height)
         ends = undistort_division(np.asarray(segments, dtype=float).reshape(-1, 2), K, k)
@@ -517,7 +528,7 @@ class Calibrator:
         found = gravity_with_lines(
             view.up, view.latitude, view.up_confidence, view.latitude_confidence, segments,
             image_size=view.image_size, pixel_xy=view.pixel_xy,
-            focal_prior=self._focal_prior(view, known_focal), conf=lines, refine_conf=self.conf["refine"],
+            focal_prior=self._focal_prior(view, focal), conf=lines, refine_conf=self.conf["refine"],
         )  # fmt: skip
         if found is None:
             return fit, 0
@@ -606,9 +617,9 @@ class Calibrator:
         if reading_edges is not None:
             self._combine_edge_focals(reading_edges, work)
         self._fit_gravity(work)
-        baseline, baseline_info = self._baseline(work, baseline_m)
+        baseline = self._baseline(work, baseline_m)
         work.timing["total"] = (time.perf_counter() - start) * 1e3
-        return self._assemble(work, baseline, baseline_info)
+        return self._assemble(work, baseline)
 
     def _start_image_work(self, left: np.ndarray, right: np.ndarray):
         """Feature matching and the edges' line segments need no network output: they run on the pool's
@@ -739,11 +750,11 @@ class Calibrator:
                 self.conf["gravity_view_correlation"],
             ))  # fmt: skip
 
-    def _baseline(self, work: _PairWork, baseline_m: float | None) -> tuple[float, tuple]:
+    def _baseline(self, work: _PairWork, baseline_m: float | None) -> _Baseline:
         """Stage 7, the length of T: given, or learned (the matches with the depth head's depth where the
-        model has one, else the pose head's). Returns it with (scale source, baseline source, its sigma)."""
+        model has one, else the pose head's)."""
         if baseline_m is not None:
-            return float(baseline_m), ("baseline", None, None)
+            return _Baseline(float(baseline_m), "baseline", None, None)
         net, pose = work.net, work.pose
         baseline, source, sigma = (
             float(np.linalg.norm(net.translation)),
@@ -765,12 +776,11 @@ class Calibrator:
         elif not np.isfinite(baseline) or baseline <= 1e-6:
             baseline = 1.0
             work.warnings.append("the pose head gave no usable metric scale: T has unit length")
-        return baseline, ("learned", source, sigma)
+        return _Baseline(baseline, "learned", source, sigma)
 
-    def _assemble(self, work: _PairWork, baseline: float, baseline_info: tuple) -> CalibrationResult:
+    def _assemble(self, work: _PairWork, baseline: _Baseline) -> CalibrationResult:
         """Stage 8: the calibration to write and report, from the stages' results (``fuse/assemble.py``)."""
         fits, pose, priors, held = work.fits, work.pose, work.priors, work.held
-        scale_source, baseline_source, baseline_sigma = baseline_info
         cameras = tuple(
             CameraEstimate(
                 fit.focal_px,
@@ -793,11 +803,11 @@ class Calibrator:
             "sigma_edge_distortion_k": [None if k is None else float(k[1]) for k in edge_k],
             # where a learned baseline came from: "depth" (the matches with the depth head's depth,
             # stereogeo_cli/fuse/scale.py) or "pose_head"; None when given
-            "baseline_source": baseline_source,
+            "baseline_source": baseline.source,
             # the pose head's own learned length of T in metres (a second opinion; the network's)
             "head_baseline_m": _finite(float(np.linalg.norm(work.net.translation))),
             # relative 1-sigma of a learned baseline (the model's validation figure); None when given
-            "sigma_baseline_rel": baseline_sigma,
+            "sigma_baseline_rel": baseline.sigma_rel,
         }
         more = {
             # each camera's EXIF focal length, where one was combined with the fields' (left, right)
@@ -805,9 +815,10 @@ class Calibrator:
             # vertical line segments each camera's gravity was fitted with (left, right)
             "vertical_segments": work.used,
         }
+        model = (self.model_path.name, self.network.model_sha256)
         calibration = assemble(
-            cameras, pose, baseline, scale_source, (self.model_path.name, self.network.model_sha256),
-            work.warnings, more_pose=more_pose, more=more, timing_ms=work.timing,
+            cameras, pose, baseline.metres, baseline.scale_source, model, work.warnings, more_pose=more_pose,
+            more=more, timing_ms=work.timing,
         )  # fmt: skip
         return CalibrationResult(
             calibration, fits[0], fits[1], pose, work.warnings, work.matches, (priors[0], priors[1])

@@ -276,7 +276,7 @@ def fuse_relative_pose(
     # the absolute focal is unobservable on near-parallel rigs and absorbs lens distortion (its common scale
     # is refined only on a turned rig: _turned_rig).
     var = [0.0 if (v is None or not np.isfinite(v) or v <= 0) else float(v) ** 2 for v in focal_sigma_rel]
-    split = None if sum(var) <= 0 else (var[0] / sum(var), var[1] / sum(var), float(np.sqrt(sum(var))), 0.0)
+    split = None if sum(var) <= 0 else _Split(var[0] / sum(var), var[1] / sum(var), float(np.sqrt(sum(var))))
     R_p = None
     if prior_R is not None:  # the pose head's rotation made consistent with gravity
         R_p = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
@@ -371,7 +371,7 @@ class _Joint:
             t = t if t @ self.prior_t >= 0 else -t
         elif share < 0.5:
             t = -t
-        focal_terms = 0.0 if split is None else ((d - split[3]) / split[2]) ** 2
+        focal_terms = 0.0 if split is None else ((d - split.d0) / split.sigma) ** 2
         focal_terms += 0.0 if self.common is None else (c / self.common) ** 2
         k_terms = (k[0] ** 2 + k[1] ** 2) / conf["distortion_sigma"] ** 2
         score = float(
@@ -424,9 +424,9 @@ def _held_equal_focals(joint: _Joint, best: _Fit, split, k_bounds) -> tuple[_Fit
     if split is None or not same_size or joint.conf["equal_focal_max_gain"] <= 0:
         return best, split
     d_equal = float(np.log(K_right[1, 1] / K_left[1, 1]))  # f_l·exp(w_l·d) = f_r·exp(-w_r·d)
-    held = (split[0], split[1], 1e-6, d_equal)
+    held = split._replace(sigma=1e-6, d0=d_equal)
     equal = joint.fit(best.state._replace(d=d_equal), best.mask, k_bounds, held)
-    if equal.score + (d_equal / split[2]) ** 2 - best.score < joint.conf["equal_focal_max_gain"]:
+    if equal.score + (d_equal / split.sigma) ** 2 - best.score < joint.conf["equal_focal_max_gain"]:
         return equal, held
     return best, split
 
@@ -570,6 +570,17 @@ def _consider_covariance(joint: _Joint, best: _Fit, split, k_bounds, sigmas: dic
     return S @ np.diag(np.square(sigma)) @ S.T
 
 
+class _Split(NamedTuple):
+    """How the refinement shares a correction d of the log focal ratio between the two cameras: the left
+    focal is scaled by exp(w_left·d), the right one by exp(-w_right·d) (the shares: each camera's variance
+    over both); the prior on d is d0 ± sigma (0 ± the fields' ratio sigma; a tiny sigma holds d)."""
+
+    w_left: float
+    w_right: float
+    sigma: float
+    d0: float = 0.0
+
+
 class _State(NamedTuple):
     """A point of the joint refinement: rotation, unit direction, log focal ratio d, common log focal
     scale c (0 where it is not refined) and the two cameras' division-model k."""
@@ -675,7 +686,7 @@ class _PoseProblem:
     def log_scales(self, d: float, c: float) -> tuple[float, float]:
         if self.split is None:
             return (c, c)
-        return (self.split[0] * d + c, -self.split[1] * d + c)
+        return (self.split.w_left * d + c, -self.split.w_right * d + c)
 
     def inverse_K(self, side: int, log_scale: float) -> np.ndarray:
         return np.diag([np.exp(-log_scale), np.exp(-log_scale), 1.0]) @ self.inverse[side]
@@ -704,7 +715,7 @@ class _PoseProblem:
         )
 
     def prior_residuals(self, state: _State) -> np.ndarray:
-        ratio = [] if self.split is None else [(state.d - self.split[3]) / self.split[2]]
+        ratio = [] if self.split is None else [(state.d - self.split.d0) / self.split.sigma]
         common = [] if self.common is None else [state.c / self.common]
         k = state.k
         k_prior = [] if self.k_bounds is None else [k[0] / self.sigma_k, k[1] / self.sigma_k]
@@ -732,7 +743,7 @@ class _PoseProblem:
         dF = [M_r.T @ dE_i @ M_l for dE_i in dE]
         P = np.diag([1.0, 1.0, 0.0])  # a log scale s moves M to diag(e⁻ˢ, e⁻ˢ, 1)·K⁻¹: ∂M/∂s = −P·M
         if split is not None:  # ∂M_l/∂d = −w_l·P·M_l, ∂M_r/∂d = w_r·P·M_r
-            dF.append(split[1] * M_r.T @ P @ E @ M_l - split[0] * M_r.T @ E @ P @ M_l)
+            dF.append(split.w_right * M_r.T @ P @ E @ M_l - split.w_left * M_r.T @ E @ P @ M_l)
         if self.common is not None:  # ∂M/∂c = −P·M on both sides
             dF.append(-(M_r.T @ P @ E @ M_l) - M_r.T @ E @ P @ M_l)
         J = np.zeros((len(r), self.n_params))
@@ -749,7 +760,7 @@ class _PoseProblem:
             J[row : row + 3, 3:5] = sign * basis / priors.direction_sigma
             row += 3
         if split is not None:
-            J[row, self.i_d] = 1.0 / split[2]
+            J[row, self.i_d] = 1.0 / split.sigma
             row += 1
         if self.common is not None:
             J[row, self.i_c] = 1.0 / self.common
@@ -797,14 +808,12 @@ def _refine_pose(
     refiner's focal ratio, the fields' common focal scale and the zero-mean distortion prior, in units of
     their sigmas (:class:`_PoseProblem`).
 
-    ``split`` = (w_left, w_right, sigma_d, d_0): the left focal is scaled by exp(w_left·d) and the right
-    one by exp(-w_right·d), so each camera takes its share of a ratio correction; the prior on d is d_0 ±
-    sigma_d (0 ± the fields' sigma; a tiny sigma holds d). ``common``: the 1-sigma of the prior 0 on c,
-    which scales both focal lengths by exp(c) (None: c held at the state's). ``state.k`` undistorts the
-    matches in the normalised coordinates of the given K_left, K_right; ``k_bounds`` their (lower, upper)
-    limits. Returns the refined state, the Gauss–Newton Hessian there, the two log focal scales and the
-    reweighted cost Σ w·r² with the Huber weights there (in units of the noise and the sigmas; the nested
-    tests of the lens and of equal focal lengths compare it).
+    ``split`` (a :class:`_Split`): how each camera takes its share of a ratio correction d, and d's prior.
+    ``common``: the 1-sigma of the prior 0 on c, which scales both focal lengths by exp(c) (None: c held at
+    the state's). ``state.k`` undistorts the matches in the normalised coordinates of the given K_left,
+    K_right; ``k_bounds`` their (lower, upper) limits. Returns the refined state, the Gauss–Newton Hessian
+    there, the two log focal scales and the reweighted cost Σ w·r² with the Huber weights there (in units
+    of the noise and the sigmas; the nested tests of the lens and of equal focal lengths compare it).
     """
     problem = _PoseProblem(left, right, K_left, K_right, noise_px, priors, split, k_bounds, conf, common)
     settings = Settings(
