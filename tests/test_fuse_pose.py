@@ -251,7 +251,7 @@ def test_the_joint_refinement_jacobian_is_the_derivative_of_its_residuals():
     ratio, common focal scale) and the k columns equal central differences of the residuals along the LM's
     own steps, away from the truth (a 3° rotation prior residual, a moved direction, a focal ratio and a
     common scale, k inside its bounds)."""
-    from stereogeo_cli.fuse.pose import _PoseProblem, _Priors, _State
+    from stereogeo_cli.fuse.pose import _PoseProblem, _Priors, _Split, _State
     from stereogeo_cli.fuse.pose import default_conf as fuse_conf
 
     rng = np.random.default_rng(47)
@@ -270,7 +270,7 @@ def test_the_joint_refinement_jacobian_is_the_derivative_of_its_residuals():
         K_right,
         0.7,
         priors,
-        (0.4, 0.6, 0.05, 0.01),
+        _Split(0.4, 0.6, 0.05, 0.01),
         ((-0.5, 0.1), (-0.5, 0.1)),
         fuse_conf,
         0.25,
