@@ -62,6 +62,10 @@ default_conf = {
     # kind of camera, and that error is common to every photo of it (docs/refine.md, "Uncertainty of the
     # focal length on photographs"); 0: none
     "camera_bias_sigma": 0.25,
+    # where evidence moved a focal length away from the images' read (the straight edges' read combined with
+    # it; the matches' focal ratio; two focal lengths held equal), the reported focal sigma takes in, in
+    # quadrature, this share of the move in log f (Calibrator._spread; it widens only what is reported)
+    "read_spread": 0.5,
     # the fusion refines the two focal lengths' common scale with the pose where both are read from the
     # images, its prior the fields' read with the camera bias above (how far that read can be off): the
     # matches of cameras that turn against each other see it (stereogeo_cli/fuse/pose.py, docs/refine.md)
@@ -333,7 +337,7 @@ class Calibrator:
         of real panoramas, so that they hold 68 % of the errors on photographs. The estimates do not change.
         A focal length that was given or had an EXIF prior keeps its sigma: that scale was not measured with
         one. ``spread_rel``: a relative spread added in quadrature to the focal length's (two reads that
-        disagree: ``_lines_spread``), as is the conf's ``camera_bias_sigma`` for a focal length read from the
+        disagree: ``_spread``), as is the conf's ``camera_bias_sigma`` for a focal length read from the
         images."""
         roll, pitch, vfov = self.photo_sigma_scale
         sigma = fit.sigma
@@ -346,14 +350,17 @@ class Calibrator:
             "pitch_deg": sigma["pitch_deg"] * pitch,
         }
 
-    def _lines_spread(self, prior: FocalCombination | None) -> float:
-        """For a focal length combined with its straight edges': the conf's ``report_spread`` times the two
-        reads' distance in log f (0 otherwise). Where fields and edges disagree, the truth is uncertain by
-        about as much, whatever their sigmas say (docs/refine.md, "Vanishing points")."""
-        if prior is None or prior.source != "lines":
-            return 0.0
-        apart = abs(math.log(prior.focal_px / prior.fields_focal_px))
-        return self.conf["manhattan"]["report_spread"] * apart
+    def _spread(self, prior: FocalCombination | None, scale: float) -> float:
+        """The relative spread a camera's reported focal sigma takes in where evidence moved its focal length
+        away from the images' read: the conf's ``read_spread`` times the move in log f. The moves: to the
+        straight edges' read, for a focal length combined with its edges' (their distance from the fields'),
+        and the fusion's ``scale`` (the matches' focal ratio, or the two focal lengths held equal, and on a
+        turned rig their common scale). Where two reads disagree, the truth is uncertain by about as much,
+        whatever their sigmas say (docs/refine.md, "Vanishing points" and "The fusion's allowances")."""
+        lines = 0.0
+        if prior is not None and prior.source == "lines":
+            lines = math.log(prior.focal_px / prior.fields_focal_px)
+        return self.conf["read_spread"] * math.hypot(lines, math.log(scale))
 
     def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:
         """One camera's fit to its fields, in the original image's pixels."""
@@ -790,9 +797,9 @@ class Calibrator:
                 fit.width,
                 fit.height,
                 fit.gravity_up,
-                self.reported_sigma(fit, _focal_from_fields(prior, known), self._lines_spread(prior)),
+                self.reported_sigma(fit, _focal_from_fields(prior, known), self._spread(prior, scale)),
             )  # fmt: skip
-            for fit, prior, known in zip(fits, priors, held, strict=True)
+            for fit, prior, known, scale in zip(fits, priors, held, pose.focal_scale, strict=True)
         )
         # the edges' lens in the final K's coordinates, as the fusion's k is reported
         edge_k = [

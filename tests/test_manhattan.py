@@ -123,7 +123,7 @@ def test_the_reported_focal_sigma_takes_in_how_far_the_two_reads_are_apart(bundl
     """The estimate does not change; the reported focal sigma is the photo-widened combined one and half the
     fields' and edges' distance in log f, in quadrature."""
     left, right = bundled
-    without = Calibrator(threads=2, conf={"manhattan": {"report_spread": 0.0}}).calibrate(left, right)
+    without = Calibrator(threads=2, conf={"read_spread": 0.0}).calibrate(left, right)
     spread = Calibrator(threads=2).calibrate(left, right)
     assert spread.left.focal_px == without.left.focal_px and spread.left.sigma == without.left.sigma
     for side in ("left", "right"):

@@ -52,9 +52,6 @@ default_conf = {
     # the raw chessboard rig's views read 5.0–7.1, Middlebury's pinhole views at most 3.3 (pipeline;
     # docs/refine.md, "Vanishing points", "Where it is not used, and why")
     "lens_sigmas": 4.0,
-    # the reported focal sigma of a combination takes in this share of the two reads' distance in log f
-    # (pipeline.Calibrator._lines_spread; it widens only what is reported)
-    "report_spread": 0.5,
 }
 
 _LOG_F_RANGE = (-5.0, 20.0)  # keeps exp(log f) finite where a fit runs away
