@@ -461,11 +461,7 @@ class Calibrator:
     def _held_at(self, view: ViewFields, focal: float, sigma: float) -> CameraFit:
         """The fit of ``view`` whose focal length is held at a combined ``focal`` (original pixels) with that
         1-sigma, the gravity fitted again for it."""
-        combined = self._refine_view(view, focal)
-        covariance = np.array(combined.covariance, dtype=float)
-        covariance[2, :] = covariance[:, 2] = 0.0
-        covariance[2, 2] = (sigma / focal) ** 2  # of log f
-        return combined.with_gravity(combined.gravity_up, covariance)
+        return self._refine_view(view, focal).with_focal_sigma(sigma / focal)
 
     def _edge_focals(
         self, finding_edges, fits: tuple[CameraFit, CameraFit], needed: list[bool]
@@ -539,10 +535,7 @@ class Calibrator:
         )  # fmt: skip
         if found is None:
             return fit, 0
-        covariance = np.array(fit.covariance, dtype=float)
-        covariance[:2, :] = covariance[:, :2] = 0.0
-        covariance[:2, :2] = found.covariance
-        return fit.with_gravity(found.gravity_up, covariance), found.segments
+        return fit.with_new_gravity(found.gravity_up, found.covariance), found.segments
 
     def _edge_lens(self, segments: np.ndarray, fit: CameraFit) -> PlumbLens | None:
         """The lens the image's straight edges show (None: too few of them, or they disagree)."""

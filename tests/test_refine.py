@@ -200,3 +200,29 @@ def test_sigma_inflation_per_parameter():
     for bad in ("0", "-1", "1,2", "a", "nan", "1,2,3,4"):
         with pytest.raises(ValueError):
             parse_sigma_inflation(bad)
+
+
+def test_a_fit_derives_its_angles_and_sigmas_from_focal_gravity_and_covariance():
+    """Roll, pitch, vFoV and the sigmas are read off the fit's focal, gravity and covariance: a new focal
+    sigma or a new gravity moves every figure that depends on it and leaves the others."""
+    from stereogeo_cli.geometry import gravity_from_roll_pitch
+    from stereogeo_cli.refine.lm import CameraFit
+
+    cov = np.array([[4e-4, 1e-4, 2e-3], [1e-4, 9e-4, -1e-3], [2e-3, -1e-3, 0.01]])
+    g = gravity_from_roll_pitch(np.radians(5.0), np.radians(-10.0))
+    fit = CameraFit(640, 480, 500.0, g, cov, 0.0, 3, True)
+    assert fit.roll_deg == pytest.approx(5.0) and fit.pitch_deg == pytest.approx(-10.0)
+    assert fit.vfov_deg == pytest.approx(np.degrees(2 * np.arctan(240 / 500)))
+    assert fit.sigma["focal_px"] == pytest.approx(500 * 0.1)
+    assert fit.sigma["pitch_deg"] == pytest.approx(np.degrees(0.02))
+    assert fit.sigma["roll_deg"] == pytest.approx(np.degrees(0.03) / np.cos(np.radians(10.0)))
+    held = fit.with_focal_sigma(0.05)  # a focal length combined elsewhere: its own sigma, no cross terms
+    assert held.sigma["focal_px"] == pytest.approx(25.0) and held.sigma["roll_deg"] == fit.sigma["roll_deg"]
+    assert np.all(held.covariance[2, :2] == 0) and np.all(held.covariance[:2, 2] == 0)
+    moved = held.with_new_gravity(gravity_from_roll_pitch(0.0, np.radians(3.0)), np.diag([1e-4, 4e-4]))
+    assert moved.roll_deg == pytest.approx(0.0, abs=1e-9) and moved.pitch_deg == pytest.approx(3.0)
+    assert moved.sigma["pitch_deg"] == pytest.approx(np.degrees(0.01))
+    assert moved.sigma["focal_px"] == held.sigma["focal_px"] and moved.focal_px == 500.0
+    wider = moved.with_focal(1000.0)  # the relative focal sigma stays, the vFoV and its sigma follow
+    assert wider.sigma["focal_px"] == pytest.approx(50.0)
+    assert wider.vfov_deg < moved.vfov_deg and wider.sigma["vfov_deg"] < moved.sigma["vfov_deg"]

@@ -99,6 +99,23 @@ class CameraFit:
         g = np.asarray(gravity, dtype=float) / np.linalg.norm(gravity)
         return replace(self, gravity_up=g, covariance=np.asarray(covariance, dtype=float))
 
+    def with_focal_sigma(self, sigma_rel: float) -> CameraFit:
+        """This fit with the relative 1-sigma of its focal length set (a focal length held at a value
+        combined from other evidence, with that value's sigma): the focal length then owes nothing to this
+        fit's gravity, so their cross terms are 0."""
+        cov = np.array(self.covariance, dtype=float)
+        cov[2, :] = cov[:, 2] = 0.0
+        cov[2, 2] = sigma_rel**2
+        return self.with_gravity(self.gravity_up, cov)
+
+    def with_new_gravity(self, gravity: np.ndarray, gravity_covariance: np.ndarray) -> CameraFit:
+        """This fit with a gravity found from other evidence (e.g. the vertical line segments) and its [2 x 2]
+        covariance of (δ_pitch, δ_roll·cos(pitch)), uncorrelated with the focal length, which stays."""
+        cov = np.array(self.covariance, dtype=float)
+        cov[:2, :] = cov[:, :2] = 0.0
+        cov[:2, :2] = gravity_covariance
+        return self.with_gravity(gravity, cov)
+
     def in_original_pixels(self, rc: ResizeCrop) -> CameraFit:
         """This fit, made on a resized and cropped image (e.g. the network input), in the original's pixels.
 
