@@ -351,12 +351,13 @@ class Calibrator:
         }
 
     def _spread(self, prior: FocalCombination | None, scale: float) -> float:
-        """The relative spread a camera's reported focal sigma takes in where evidence moved its focal length
-        away from the images' read: the conf's ``read_spread`` times the move in log f. The moves: to the
-        straight edges' read, for a focal length combined with its edges' (their distance from the fields'),
-        and the fusion's ``scale`` (the matches' focal ratio, or the two focal lengths held equal, and on a
-        turned rig their common scale). Where two reads disagree, the truth is uncertain by about as much,
-        whatever their sigmas say (docs/refine.md, "Vanishing points" and "The fusion's allowances")."""
+        """The relative spread the reported sigma of a focal length read from the images takes in where
+        evidence moved it away from that read: the conf's ``read_spread`` times the move in log f. The moves:
+        to the straight edges' read, for a focal length combined with its edges' (their distance from the
+        fields'), and the fusion's ``scale`` (the matches' focal ratio, or the two focal lengths held equal,
+        and on a turned rig their common scale). Where two reads disagree, the truth is uncertain by about as
+        much, whatever their sigmas say (docs/refine.md, "Vanishing points" and "The fusion's allowances").
+        A given or EXIF focal length keeps its prior's sigma (the caller passes no spread for it)."""
         lines = 0.0
         if prior is not None and prior.source == "lines":
             lines = math.log(prior.focal_px / prior.fields_focal_px)
@@ -784,15 +785,16 @@ class Calibrator:
     def _assemble(self, work: _PairWork, baseline: _Baseline) -> CalibrationResult:
         """Stage 8: the calibration to write and report, from the stages' results (``fuse/assemble.py``)."""
         fits, pose, priors, held = work.fits, work.pose, work.priors, work.held
+        from_images = [_focal_from_fields(prior, known) for prior, known in zip(priors, held, strict=True)]
         cameras = tuple(
             CameraEstimate(
                 fit.focal_px,
                 fit.width,
                 fit.height,
                 fit.gravity_up,
-                self.reported_sigma(fit, _focal_from_fields(prior, known), self._spread(prior, scale)),
+                self.reported_sigma(fit, own, self._spread(prior, scale) if own else 0.0),
             )  # fmt: skip
-            for fit, prior, known, scale in zip(fits, priors, held, pose.focal_scale, strict=True)
+            for fit, prior, own, scale in zip(fits, priors, from_images, pose.focal_scale, strict=True)
         )
         # the edges' lens in the final K's coordinates, as the fusion's k is reported
         edge_k = [

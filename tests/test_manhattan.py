@@ -121,14 +121,15 @@ def test_calibrate_leaves_the_edges_out_where_they_show_a_lens(bundled, monkeypa
 
 def test_the_reported_focal_sigma_takes_in_how_far_the_two_reads_are_apart(bundled):
     """The estimate does not change; the reported focal sigma is the photo-widened combined one and half the
-    fields' and edges' distance in log f, in quadrature."""
+    fields' and edges' distance in log f (and half the matches' move of the focal length), in quadrature."""
     left, right = bundled
     without = Calibrator(threads=2, conf={"read_spread": 0.0}).calibrate(left, right)
     spread = Calibrator(threads=2).calibrate(left, right)
     assert spread.left.focal_px == without.left.focal_px and spread.left.sigma == without.left.sigma
     for side in ("left", "right"):
         entry = spread.report()["focal_prior"][0 if side == "left" else 1]
-        apart = 0.5 * abs(math.log(entry["focal_px"] / entry["fields_focal_px"]))
+        moved = spread.pose.focal_scale[0 if side == "left" else 1]
+        apart = 0.5 * math.hypot(math.log(entry["focal_px"] / entry["fields_focal_px"]), math.log(moved))
         plain = getattr(without.calibration, f"sigma_{side}")
         widened = getattr(spread.calibration, f"sigma_{side}")
         f = getattr(spread.calibration, f"K_{side}")[0, 0]

@@ -138,6 +138,7 @@ def calibrate_rig(
     pinhole: bool = False,
     focal_sigma_scale: tuple[float, float] = (1.0, 1.0),
     focal_bias_sigma: tuple[float, float] = (0.0, 0.0),
+    read_spread: tuple[float, float] = (0.0, 0.0),
 ):
     """The joint calibration (a StereoCalibration) from pass-1 and pass-2 outcomes of the same pairs.
 
@@ -145,7 +146,9 @@ def calibrate_rig(
     ``pinhole``: fit no lens distortion; ``focal_sigma_scale``: what each focal length's reported sigma is
     widened by (the model's photo_sigma_scale, as a single pair's is: ``Calibrator.reported_sigma``);
     ``focal_bias_sigma``: the relative sigma added to it in quadrature (the network's bias on a camera, for a
-    focal length read from the images: the pipeline's ``camera_bias_sigma``).
+    focal length read from the images: the pipeline's ``camera_bias_sigma``); ``read_spread``: per camera, the
+    share of the pooled fusion's move of its focal length added in quadrature too (the pipeline's
+    ``read_spread`` for a focal length read from the images, as ``Calibrator._spread``; 0 otherwise).
     """
     from stereogeo_cli.fuse import fuse_relative_pose
     from stereogeo_cli.fuse.assemble import CameraEstimate, assemble, focal_sigmas
@@ -171,17 +174,22 @@ def calibrate_rig(
         for est, scale in zip(focals, pose.focal_scale, strict=True)
     )
     # each camera's gravity is its own in every pair ("pairs"); the focal lengths' sigmas are reported as a
-    # single pair's are (Calibrator.reported_sigma: ``focal_sigma_scale`` and ``focal_bias_sigma``)
+    # single pair's are (Calibrator.reported_sigma and _spread: the scale, the bias and the fusion's move)
     cameras = tuple(
         CameraEstimate(
             est.focal_px,
             width,
             height,
             None,
-            focal_sigmas(est.focal_px, height, est.sigma_px * scale / est.focal_px, bias),
+            focal_sigmas(
+                est.focal_px,
+                height,
+                est.sigma_px * widen / est.focal_px,
+                math.hypot(bias, spread * math.log(moved)),
+            ),
         )  # fmt: skip
-        for est, (width, height), scale, bias in zip(
-            focals, sizes, focal_sigma_scale, focal_bias_sigma, strict=True
+        for est, (width, height), widen, bias, spread, moved in zip(
+            focals, sizes, focal_sigma_scale, focal_bias_sigma, read_spread, pose.focal_scale, strict=True
         )
     )
     if baseline_m is not None:
@@ -265,5 +273,6 @@ def same_rig_calibration(outcomes, job: PairJob, workers, calibrator, bar: _Prog
     rig = calibrate_rig(
         ok, second, focals, baseline_m, model_id, pinhole=job.pinhole, focal_sigma_scale=scale,
         focal_bias_sigma=tuple(bias if own else 0.0 for own in from_images),
+        read_spread=tuple(calibrator().conf["read_spread"] if own else 0.0 for own in from_images),
     )  # fmt: skip
     return replace(rig, timing_ms={"total": (time.perf_counter() - start) * 1e3})  # the same-rig stage
