@@ -116,12 +116,19 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=0, help="the first N pairs of each dataset (0: all)")
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "stereogeo.onnx")
     parser.add_argument("--keep", type=Path, help="a folder to keep the two checkouts' reports in")
+    parser.add_argument(
+        "--reuse-old", action="store_true", help="take the other checkout's reports from --keep if there"
+    )
     args = parser.parse_args()
     datasets = [str(Path(d).resolve()) for d in args.datasets]
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.keep or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
-        old = run(args.old.resolve(), args.model.resolve(), datasets, args.limit, folder / "old.json")
+        kept = folder / "old.json"
+        if args.reuse_old and kept.exists():
+            old = json.loads(kept.read_text())
+        else:
+            old = run(args.old.resolve(), args.model.resolve(), datasets, args.limit, kept)
         new = run(ROOT, args.model.resolve(), datasets, args.limit, folder / "new.json")
     largest: dict[str, float] = {}
     disagree = []

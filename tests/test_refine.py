@@ -226,3 +226,21 @@ def test_a_fit_derives_its_angles_and_sigmas_from_focal_gravity_and_covariance()
     wider = moved.with_focal(1000.0)  # the relative focal sigma stays, the vFoV and its sigma follow
     assert wider.sigma["focal_px"] == pytest.approx(50.0)
     assert wider.vfov_deg < moved.vfov_deg and wider.sigma["vfov_deg"] < moved.sigma["vfov_deg"]
+
+
+def test_noisy_fields_reach_their_minimum_in_few_steps():
+    """Most samples of real fields sit in the Huber loss's linear part: with its own curvature near the
+    minimum the fit converges in a few steps and stops at the minimum itself (a fit started there stays)."""
+    rng = np.random.default_rng(44)
+    for _ in range(12):
+        width, height, f, g, roll, pitch, vfov = random_camera(rng)
+        up, lat, conf = noisy_fields(rng, width, height, f, g)
+        fit = refine_camera(up, lat, conf, conf)
+        assert fit.converged and fit.iterations <= 8
+        again = refine_camera(
+            up, lat, conf, conf, gravity_init=fit.gravity_up, focal_init=fit.focal_px,
+            conf={"relative_tolerance": 0.0, "max_iterations": 10},
+        )  # fmt: skip
+        assert again.cost >= fit.cost * (1 - 1e-6)
+        assert abs(again.focal_px / fit.focal_px - 1) < 1e-4
+        assert gravity_angle(again.gravity_up, fit.gravity_up) < np.radians(0.005)

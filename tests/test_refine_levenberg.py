@@ -86,3 +86,25 @@ def test_covariance_is_the_inverse_or_the_sandwich_with_held_coordinates_zero():
     np.testing.assert_allclose(held[np.ix_(free, free)], np.linalg.inv(A[np.ix_(free, free)]))
     singular = covariance(np.zeros((2, 2)))
     assert np.all(np.isinf(singular))
+
+
+def test_the_curvature_switch_turns_on_once_steps_lower_the_cost_little():
+    """``near`` is False until a kept step lowers the cost by less than the switch's share, True after."""
+    cost, normal_equations = _rosenbrock()
+    seen = []
+
+    def equations(x, near):
+        seen.append((cost(x), near))
+        return normal_equations(x)
+
+    fit = levenberg_marquardt(
+        np.array([-1.2, 1.0]), cost, equations, np.add, Settings(max_iterations=200, curvature_switch=0.1)
+    )
+    assert fit.converged and fit.cost < 1e-10
+    flags = [near for _, near in seen]
+    assert flags[0] is False and flags[-1] is True
+    first = flags.index(True)
+    assert all(flags[first:])  # it stays on
+    before, at = seen[first - 1][0], seen[first][0]
+    assert before - at <= 0.1 * before  # the step that turned it on lowered the cost by less than a tenth
+    assert all(a - b > 0.1 * a for (a, _), (b, _) in zip(seen[: first - 1], seen[1:first], strict=True))

@@ -10,15 +10,23 @@ named state):
 
 - ``cost(x)``: the scalar the fit minimises (robust losses included);
 - ``normal_equations(x)``: (H, g), the Gauss–Newton Hessian (with IRLS weights for a robust loss) and the
-  gradient, in the coordinates of a step δ;
+  gradient, in the coordinates of a step δ; or (H, g, D), with D the damping's diagonal where diag(H) is
+  not the scale to damp by;
 - ``retract(x, δ)``: x moved by δ (a plain sum, or a step on a manifold: the sphere, rotations).
 
-The step solves (H + λ·diag(H))·δ = −g, Marquardt's scaling, so the damping does not depend on the units of
-the parameters. A step is kept only where it lowers the cost; then λ shrinks ×0.1 (floored), otherwise it
-grows ×10 and the step is tried again from the same point. The fit stops after ``max_iterations`` tries
-(kept or not), when a kept step lowers the cost by less than ``relative_tolerance`` of it, when a kept
-step is shorter than ``step_tolerance``, or when λ passes ``lambda_max`` (no step lowers the cost: a
-minimum to numerical precision).
+The step solves (H + λ·D)·δ = −g, D = diag(H) by default (Marquardt's scaling), so the damping does not
+depend on the units of the parameters. A step is kept only where it lowers the cost; then λ shrinks ×0.1
+(floored), otherwise it grows ×10 and the step is tried again from the same point. The fit stops after
+``max_iterations`` tries (kept or not), when a kept step lowers the cost by less than
+``relative_tolerance`` of it, when a kept step is shorter than ``step_tolerance``, or when λ passes
+``lambda_max`` (no step lowers the cost: a minimum to numerical precision).
+
+A robust loss's IRLS Hessian counts, for a residual in the loss's outer part, a curvature along the
+residual that the loss does not have. Far from the minimum that is what keeps a step safe (the IRLS cost
+lies above the robust one); near it, where many residuals stay in the outer part for good, it shortens every
+step by a fixed share and the fit creeps. With ``curvature_switch`` set, ``normal_equations(x, near)`` is
+called with ``near`` True once a kept step has lowered the cost by less than that share of it: from there
+the problem gives the Hessian with the loss's own curvature (Newton's steps on the robust cost).
 """
 
 from __future__ import annotations
@@ -44,6 +52,7 @@ class Settings:
     lambda_max: float = 1e8
     relative_tolerance: float = 1e-7
     step_tolerance: float = 0.0
+    curvature_switch: float | None = None  # module docstring
 
 
 @dataclass
@@ -59,9 +68,11 @@ class Result:
     history: list[float] = field(default_factory=list)  # the cost at the start and after every kept step
 
 
-def damped_step(H: np.ndarray, g: np.ndarray, lam: float) -> np.ndarray:
-    """δ solving (H + λ·(diag(H) + ε))·δ = −g; raises ``np.linalg.LinAlgError`` where singular."""
-    return -np.linalg.solve(H + lam * np.diag(np.diag(H) + DIAGONAL_FLOOR), g)
+def damped_step(H: np.ndarray, g: np.ndarray, lam: float, damping: np.ndarray | None = None) -> np.ndarray:
+    """δ solving (H + λ·(D + ε))·δ = −g, D = ``damping`` (default diag(H)); raises
+    ``np.linalg.LinAlgError`` where singular."""
+    D = np.diag(H) if damping is None else damping
+    return -np.linalg.solve(H + lam * np.diag(D + DIAGONAL_FLOOR), g)
 
 
 def levenberg_marquardt(
@@ -75,15 +86,22 @@ def levenberg_marquardt(
     """Minimise ``cost`` from ``x0`` (module docstring). ``free``: a boolean mask of the step's coordinates
     that move (the others are held: their rows and columns are left out of the solve and their step is 0);
     default all. ``H`` and ``gradient`` in the result are the full ones at the final x."""
+    switch = settings.curvature_switch
+    near = False
+
+    def equations(x):
+        found = normal_equations(x) if switch is None else normal_equations(x, near)
+        return found[0], found[1], (found[2] if len(found) > 2 else None)
+
     x, current = x0, float(cost(x0))
-    H, g = normal_equations(x)
+    H, g, D = equations(x)
     n = len(g)
     free = np.ones(n, dtype=bool) if free is None else np.asarray(free, dtype=bool)
     history, lam, iterations, converged = [current], settings.lambda_init, 0, False
     while iterations < settings.max_iterations and free.any():
         iterations += 1
         try:
-            step_free = damped_step(H[np.ix_(free, free)], g[free], lam)
+            step_free = damped_step(H[np.ix_(free, free)], g[free], lam, None if D is None else D[free])
         except np.linalg.LinAlgError:
             break
         step = np.zeros(n)
@@ -95,7 +113,8 @@ def levenberg_marquardt(
             x, current = candidate, new
             history.append(current)
             lam = max(lam * LAMBDA_DOWN, LAMBDA_FLOOR)
-            H, g = normal_equations(x)
+            near = near or (switch is not None and decrease <= switch * (current + decrease))
+            H, g, D = equations(x)
             if (
                 decrease <= settings.relative_tolerance * (current + decrease)
                 or current < 1e-24

@@ -25,10 +25,13 @@ from stereogeo_cli.refine.levenberg import Settings, covariance, levenberg_marqu
 
 default_conf = {
     "max_iterations": 30,  # LM steps, accepted or rejected
-    "lambda_init": 0.1,  # initial damping of δ = -(H + λ·diag(H))⁻¹ g
+    "lambda_init": 0.1,  # initial damping of δ = -(H + λ·D)⁻¹ g (D: the IRLS curvature's diagonal)
     "lambda_max": 1e8,  # give up once a step cannot lower the cost even this damped
     "huber_scale": 0.01,  # residual size where the Huber loss turns from quadratic to linear
     "relative_tolerance": 1e-7,  # stop when an accepted step lowers the cost by less than this share
+    # Newton steps with the Huber loss's own curvature once a kept step lowers the cost by less than this
+    # share (refine/levenberg.py), IRLS steps before
+    "curvature_switch": 0.1,
     "max_samples": 3000,  # fields are sub-sampled on a regular grid down to about this many pixels
     "min_vfov_deg": 5.0,  # log f is clamped so the vFoV stays within these bounds
     "max_vfov_deg": 150.0,
@@ -216,7 +219,7 @@ class _Problem:
         """The robust (sandwich) covariance of the M-estimator at (g, log f), H⁻¹·M·H⁻¹ with M = Σ gₙgₙᵀ
         (unlike s²·H⁻¹ it stays honest where the Huber weights and confidences make residuals unequal),
         widened by ``inflation`` (one factor, or three for roll, pitch and vFoV)."""
-        _, _, bread, meat = self.normal_equations(g, log_f, covariance=True)
+        bread, _, _, meat = self.normal_equations(g, log_f, near=True, meat=True)
         roll_s, pitch_s, vfov_s = np.broadcast_to(np.asarray(inflation, dtype=float), (3,))
         scale = np.array([pitch_s, roll_s, vfov_s])  # in the order of the parameters: pitch, roll, log f
         return covariance(bread, meat, free) * np.outer(scale, scale)
@@ -238,11 +241,15 @@ class _Problem:
         data = (np.dot(self.c_up, rho_up) + np.dot(self.c_lat, rho_lat)) / self.n
         return float(data) + self._prior_cost(g, log_f)
 
-    def normal_equations(self, g: np.ndarray, log_f: float, covariance: bool = False):
-        """H [3 x 3] and gradient [3] of the cost (both ×N/2), in the Gauss–Newton form with IRLS weights.
+    def normal_equations(self, g: np.ndarray, log_f: float, near: bool = True, meat: bool = False):
+        """H [3 x 3], the gradient [3] (both ×N/2) and the damping's diagonal [3] of the cost, and with
+        ``meat`` Σ gₙgₙᵀ over the samples' gradients (the sandwich covariance's, H⁻¹·meat·H⁻¹), else None.
 
-        With ``covariance``, also the exact Hessian of the robust cost ("bread") and Σ gₙgₙᵀ over the
-        samples' gradients ("meat") for the sandwich covariance bread⁻¹·meat·bread⁻¹.
+        H is the Gauss–Newton Hessian with the IRLS weights or, ``near`` the minimum, with the Huber loss's
+        own curvature (refine/levenberg.py): where the loss is linear it has none along the residual, so H
+        keeps the part of an up sample's Jacobian across its residual there, and nothing of a latitude
+        sample's. The damping's scale is always the IRLS curvature's (near the minimum too, a sample whose
+        residual crosses into the linear part must not let a step run along it).
         """
         up, sin_lat, perp, k, J_lat = fields_and_jacobian_factors(
             g, np.exp(log_f), self.x, self.y, self.cx, self.cy
@@ -258,34 +265,36 @@ class _Problem:
         r_perp = np.sum(perp * r_up, axis=1)
         wk = k * w_up[:, None]
         wJ_lat = J_lat * w_lat[:, None]
-        H = wk.T @ k + wJ_lat.T @ J_lat
         grad = -(wk.T @ r_perp + wJ_lat.T @ r_lat)
-        bread = meat = None
-        if covariance:
-            # Where the Huber loss is linear it has no curvature along the residual: the bread keeps the
-            # part of the up Jacobian across the residual there, and nothing of the latitude's.
-            outside_up = s_up > self.scale**2
+        damping = np.einsum("ij,ij->j", wk, k) + np.einsum("ij,ij->j", wJ_lat, J_lat)
+        if near:
             along = r_perp**2 / np.maximum(s_up, 1e-300)  # (r̂·perp)², the share of J along the residual
-            bread = (wk * np.where(outside_up, 1.0 - along, 1.0)[:, None]).T @ k
-            bread += (wJ_lat * (s_lat <= self.scale**2)[:, None]).T @ J_lat
+            across = np.where(s_up > self.scale**2, 1.0 - along, 1.0)
+            H = (wk * across[:, None]).T @ k + (wJ_lat * (s_lat <= self.scale**2)[:, None]).T @ J_lat
+        else:
+            H = wk.T @ k + wJ_lat.T @ J_lat
+        M = None
+        if meat:
             per_sample = wk * r_perp[:, None] + wJ_lat * r_lat[:, None]
-            meat = per_sample.T @ per_sample
+            M = per_sample.T @ per_sample
         if self.focal_prior is not None:
             info = np.zeros((3, 3))
             info[2, 2] = 1.0 / self.focal_prior[1] ** 2
             H += info
+            damping += np.diag(info)
             grad[2] += (log_f - self.focal_prior[0]) * info[2, 2]
-            if covariance:  # a prior is one more observation with its own variance
-                bread, meat = bread + info, meat + info
+            if meat:  # a prior is one more observation with its own variance
+                M += info
         if self.gravity_prior is not None:
             B = tangent_basis(g)
             info = np.zeros((3, 3))
             info[:2, :2] = B.T @ B / self.gravity_prior[1] ** 2
             H += info
+            damping += np.diag(info)
             grad[:2] += B.T @ (g - self.gravity_prior[0]) / self.gravity_prior[1] ** 2
-            if covariance:
-                bread, meat = bread + info, meat + info
-        return H, grad, bread, meat
+            if meat:
+                M += info
+        return H, grad, damping, M
 
 
 def _parse_focal_prior(prior):
@@ -425,10 +434,11 @@ def refine_camera(
     settings = Settings(
         max_iterations=conf["max_iterations"] if usable else 0, lambda_init=conf["lambda_init"],
         lambda_max=conf["lambda_max"], relative_tolerance=conf["relative_tolerance"],
+        curvature_switch=conf["curvature_switch"],
     )  # fmt: skip
     fit = levenberg_marquardt(
-        (g, log_f), lambda s: problem.cost(*s), lambda s: problem.normal_equations(*s)[:2], retract, settings,
-        free,
+        (g, log_f), lambda s: problem.cost(*s), lambda s, near: problem.normal_equations(*s, near=near),
+        retract, settings, free,
     )  # fmt: skip
     g, log_f = fit.x
 

@@ -20,6 +20,7 @@ default_conf = {
     "steps": 10,  # unrolled LM steps
     "lambda_init": 0.1,  # initial damping (the refiner's; the schedule is refine/levenberg.py's)
     "huber_scale": None,  # None: squared loss; a float: the refiner's scaled Huber
+    "curvature_switch": 0.1,  # as the refiner's (refine/lm.py)
     "min_vfov_deg": 5.0,  # log f is clamped so the vFoV stays within these bounds
     "max_vfov_deg": 150.0,
 }
@@ -78,22 +79,32 @@ def _robust(s: torch.Tensor, scale: float | None) -> tuple[torch.Tensor, torch.T
     )
 
 
-def _cost_and_normal_equations(g, log_f, data, scale):
+def _cost_and_normal_equations(g, log_f, data, scale, near):
+    """The refiner's cost, H, gradient and damping diagonal, batched; ``near`` [B]: H with the Huber loss's
+    own curvature where True (refine/lm.py, ``_Problem.normal_equations``)."""
     up, sin_lat, perp, k, J_lat = fields_and_jacobian_factors(
         g, log_f, data["x"], data["y"], data["cx"], data["cy"]
     )
     r_up = data["up"] - up
     r_lat = data["sin_lat"] - sin_lat
     s_up = (r_up * r_up).sum(-1)
+    s_lat = r_lat * r_lat
     rho_up, d_up = _robust(s_up, scale)
-    rho_lat, d_lat = _robust(r_lat * r_lat, scale)
+    rho_lat, d_lat = _robust(s_lat, scale)
     cost = ((data["c_up"] * rho_up).sum(-1) + (data["c_lat"] * rho_lat).sum(-1)) / data["n"]
     w_up, w_lat = data["c_up"] * d_up, data["c_lat"] * d_lat
     r_perp = (perp * r_up).sum(-1)
     wk, wJ_lat = k * w_up[..., None], J_lat * w_lat[..., None]
     H = wk.transpose(1, 2) @ k + wJ_lat.transpose(1, 2) @ J_lat
     grad = -((wk * r_perp[..., None]).sum(1) + (wJ_lat * r_lat[..., None]).sum(1))
-    return cost, H, grad
+    damping = torch.diagonal(H, dim1=1, dim2=2)
+    if scale is not None:  # a squared loss has no outer part: its two Hessians are one
+        along = r_perp**2 / s_up.clamp_min(1e-300)
+        across = torch.where(s_up > scale**2, 1.0 - along, torch.ones_like(along))
+        curved = (wk * across[..., None]).transpose(1, 2) @ k
+        curved = curved + (wJ_lat * (s_lat <= scale**2)[..., None]).transpose(1, 2) @ J_lat
+        H = torch.where(near[:, None, None], curved, H)
+    return cost, H, grad, damping
 
 
 def _cost(g, log_f, data, scale):
@@ -149,16 +160,19 @@ def refine_batch(
     lam = torch.full((batch,), conf["lambda_init"], dtype=up.dtype)
     eye = torch.eye(3, dtype=up.dtype)
     scale = conf["huber_scale"]
+    near = torch.zeros(batch, dtype=torch.bool)
     for _ in range(conf["steps"]):
         # levenberg_marquardt's loop, batched: the damped step, kept where it lowers the cost
-        cost, H, grad = _cost_and_normal_equations(g, log_f, data, scale)
-        diag = torch.diagonal(H, dim1=1, dim2=2) + DIAGONAL_FLOOR
+        cost, H, grad, damping = _cost_and_normal_equations(g, log_f, data, scale, near)
+        diag = damping + DIAGONAL_FLOOR
         A = H + lam[:, None, None] * diag[:, None, :] * eye
         step = -torch.linalg.solve(A, grad.unsqueeze(-1)).squeeze(-1)
         g_new = retract_on_sphere(g, step[:, :2], tangent_basis(g))
         log_f_new = torch.minimum(torch.maximum(log_f + step[:, 2], log_f_min), log_f_max)
-        accept = _cost(g_new, log_f_new, data, scale) < cost
+        new = _cost(g_new, log_f_new, data, scale)
+        accept = new < cost
         g = torch.where(accept[:, None], g_new, g)
         log_f = torch.where(accept, log_f_new, log_f)
         lam = torch.where(accept, (lam * LAMBDA_DOWN).clamp_min(LAMBDA_FLOOR), lam * LAMBDA_UP).detach()
+        near = near | (accept & (cost - new <= conf["curvature_switch"] * cost)).detach()
     return g, torch.exp(log_f)
