@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereogeo_cli.geometry.camera import principal_point
-from stereogeo_cli.geometry.gravity import retract_on_sphere, tangent_basis
+from stereogeo_cli.geometry.gravity import tangent_basis
 from stereogeo_cli.refine.levenberg import Settings, covariance, levenberg_marquardt
 
 default_conf = {
@@ -60,6 +60,25 @@ _LOG_F_RANGE = (-5.0, 20.0)  # keeps exp(log f) finite where a fit runs away
 def _cross(a, b) -> tuple[float, float, float]:
     """a × b of two 3-vectors (plain floats: numpy's cross costs more than the product itself)."""
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _moved_up(up: np.ndarray, basis: np.ndarray, d1: float, d2: float) -> tuple[tuple, np.ndarray]:
+    """``retract_on_sphere(up, (d1, d2), basis)`` and its ``tangent_basis`` [3 x 2], in plain floats (the fit
+    evaluates them five times per step; numpy's small-array calls cost more than the arithmetic)."""
+    step = [basis[i, 0] * d1 + basis[i, 1] * d2 for i in range(3)]
+    angle = math.sqrt(step[0] ** 2 + step[1] ** 2 + step[2] ** 2)
+    if angle < 1e-15:
+        g = [float(up[0]), float(up[1]), float(up[2])]
+    else:
+        c, s = math.cos(angle), math.sin(angle) / angle
+        g = [c * up[i] + s * step[i] for i in range(3)]
+    n = math.sqrt(g[0] ** 2 + g[1] ** 2 + g[2] ** 2)
+    g = [v / n for v in g]
+    norm = math.hypot(g[0], g[1])
+    if norm < 1e-12:  # looking straight up or down
+        return tuple(g), np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
+    hx, hy = g[0] / norm, g[1] / norm
+    return tuple(g), np.array([[-hx * g[2], hy], [-hy * g[2], -hx], [norm, 0.0]])
 
 
 @dataclass(frozen=True)
@@ -101,8 +120,7 @@ class _Frame:
     def directions(self, x: np.ndarray, yaw_derivative: bool = False) -> np.ndarray:
         """The frame's three directions [3 x 3] (rows: horizontal, horizontal, up), camera coordinates; with
         ``yaw_derivative``, their derivatives in the yaw instead."""
-        up = retract_on_sphere(self.up, np.asarray(x[1:3], dtype=float), self.basis)
-        e = tangent_basis(up)
+        up, e = _moved_up(self.up, self.basis, float(x[1]), float(x[2]))
         c, s = math.cos(x[3]), math.sin(x[3])
         if yaw_derivative:
             c, s = -s, c
@@ -136,6 +154,25 @@ class _Frame:
     def cost(self, x: np.ndarray) -> float:
         r = self.residuals(x).min(axis=1)
         return float(np.sum(self.length * np.log1p((r / self.scale) ** 2)))
+
+    def start_costs(self, focals: np.ndarray, yaws: np.ndarray) -> np.ndarray:
+        """:meth:`cost` of every start (log f, 0, 0, yaw) of the grid ``focals`` × ``yaws`` at once, [F x Y]:
+        the up direction is the fields' at every start, so the frames differ by their yaw and focal only."""
+        e = self.basis
+        c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
+        a = c * e[:, 0] + s * e[:, 1]  # [Y x 3]
+        d = np.stack([a, np.cross(self.up, a), np.broadcast_to(self.up, a.shape)], axis=1)  # [Y x 3 x 3]
+        f = np.exp(np.clip(focals, *_LOG_F_RANGE))[:, None, None]
+        (cx, cy), z = self.centre, d[None, :, :, 2]
+        # [F x Y x 3 (points) x 3 (coordinates)], as points() gives them
+        points = np.stack(
+            np.broadcast_arrays(f * d[None, :, :, 0] + cx * z, f * d[None, :, :, 1] + cy * z, z), -1
+        )
+        signed = np.einsum("nc,fypc->fynp", self.across, points)
+        l1 = self.mid[:, 1, None] * points[:, :, None, :, 2] - points[:, :, None, :, 1]
+        l2 = points[:, :, None, :, 0] - self.mid[:, 0, None] * points[:, :, None, :, 2]
+        r = (np.abs(signed) / np.maximum(np.hypot(l1, l2), 1e-12)).min(axis=-1)
+        return np.sum(self.length * np.log1p((r / self.scale) ** 2), axis=-1)
 
     def normal_equations(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(H, g, residuals, assignment) of the reweighted problem, each segment on its nearest direction.
@@ -191,18 +228,15 @@ def manhattan_focal(
         return None
     centre = principal_point(width, height)
     frame = _Frame(segments, centre, gravity_up, conf["loss_scale_px"] * detector_px)
-    starts = [
-        np.array([math.log(focal_px * m), 0.0, 0.0, yaw])
-        for m in conf["focal_starts"]
-        for yaw in np.radians(np.arange(0.0, 90.0, conf["yaw_step_deg"]))
-    ]
+    focals = np.log(focal_px * np.asarray(conf["focal_starts"], dtype=float))
+    yaws = np.radians(np.arange(0.0, 90.0, conf["yaw_step_deg"]))
+    best = np.unravel_index(np.argmin(frame.start_costs(focals, yaws)), (len(focals), len(yaws)))
+    start = np.array([focals[best[0]], 0.0, 0.0, yaws[best[1]]])
     settings = Settings(
         max_iterations=conf["iterations"], lambda_init=1e-3, lambda_max=1e6, relative_tolerance=0.0,
         step_tolerance=1e-7,
     )  # fmt: skip
-    x = levenberg_marquardt(
-        min(starts, key=frame.cost), frame.cost, lambda x: frame.normal_equations(x)[:2], np.add, settings
-    ).x
+    x = levenberg_marquardt(start, frame.cost, lambda x: frame.normal_equations(x)[:2], np.add, settings).x
     if not _LOG_F_RANGE[0] < x[0] < _LOG_F_RANGE[1]:
         return None
     H, _, r, k = frame.normal_equations(x)
