@@ -373,7 +373,7 @@ def calibrate(
     model: Annotated[
         Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
     ] = None,
-    threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core).")] = 0,
+    threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core but one).")] = 0,
 ) -> None:
     """Calibrate a stereo camera from one image pair: focal lengths, gravity (roll, pitch), R and T."""
     _check_calibrate_options(baseline, focal_left, focal_right, focal_sigma, threads)
@@ -700,7 +700,7 @@ def evaluate(
         Path | None, typer.Option(help="Draw the cumulative error curves (up to 10°) into this PNG file.")
     ] = None,
     model: Annotated[Path | None, typer.Option(help="The ONNX model (default: the shipped one).")] = None,
-    threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core).")] = 0,
+    threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core but one).")] = 0,
 ) -> None:
     """Calibrate every pair of a dataset with ground truth and report the papers' accuracy metrics."""
     import json
