@@ -43,12 +43,13 @@ def stereogeo_command() -> list[str]:
 
 
 def run(cmd: list[str], root: Path = ROOT, **kwargs) -> subprocess.CompletedProcess:
-    """``cmd`` with the code of the checkout ``root``."""
+    """``cmd`` with the code of the checkout ``root``, run in it (``python -m`` looks in the working folder
+    first, before PYTHONPATH)."""
     env = {
         **os.environ,
         "PYTHONPATH": os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])),
     }
-    return subprocess.run(cmd, env=env, **kwargs)
+    return subprocess.run(cmd, env=env, cwd=root, **kwargs)
 
 
 def load() -> str:
