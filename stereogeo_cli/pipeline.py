@@ -154,7 +154,7 @@ class CalibrationResult:
         )  # fmt: skip
         mirrored_pose = replace(
             pose, R=pose.R.T, t_direction=-pose.R.T @ pose.t_direction, focal_scale=pose.focal_scale[::-1],
-            distortion=pose.distortion[::-1], sigma_distortion=pose.sigma_distortion[::-1],
+            distortion=pose.distortion[::-1], sigma_distortion=pose.sigma_distortion[::-1], start=None,
         )  # fmt: skip
         matches = None if self.matches is None else Matches(self.matches.right, self.matches.left)
         return replace(
@@ -439,8 +439,10 @@ class Calibrator:
         held: list[float | None],
         edge_lens: list[PlumbLens | None],
         priors: list[dict | None],
+        again=None,
     ) -> RelativePose:
-        """The relative pose from the matches, the two fits (K, gravity, their sigmas) and the pose head."""
+        """The relative pose from the matches, the two fits (K, gravity, their sigmas) and the pose head;
+        ``again``: an earlier fusion's ``start`` on the same matches (``fuse_relative_pose``)."""
         K_left = intrinsic_matrix(fit_left.focal_px, fit_left.width, fit_left.height)
         K_right = intrinsic_matrix(fit_right.focal_px, fit_right.width, fit_right.height)
         gravity_sigma = math.radians(
@@ -468,6 +470,7 @@ class Calibrator:
                 None if edge_lens[0] is None else edge_lens[0].division_k(fit_left.focal_px),
                 None if edge_lens[1] is None else edge_lens[1].division_k(fit_right.focal_px),
             ),
+            again=again,
         )  # fmt: skip
         if pose.source == "pose_head" and held == [None, None]:
             pose = hold_alike_focals(pose, fit_left, fit_right, self.conf["equal_focal_fields_sigmas"])
@@ -712,17 +715,21 @@ class Calibrator:
                 work.edge_lens[side] = self._edge_lens(segments, fit)
         work.timing["lines"] = (time.perf_counter() - tick) * 1e3
 
-    def _fuse_pose(self, work: _PairWork) -> None:
-        """Stage 4: the relative pose from the matches, the fits and the pose head (``_fuse``)."""
+    def _fuse_pose(self, work: _PairWork, again=None) -> None:
+        """Stage 4: the relative pose from the matches, the fits and the pose head (``_fuse``); ``again``:
+        the first fusion's choices, when it runs again with other focal lengths."""
         tick = time.perf_counter()
-        work.pose = self._fuse(work.matches, *work.fits, work.net, work.held, work.edge_lens, work.priors)
+        work.pose = self._fuse(
+            work.matches, *work.fits, work.net, work.held, work.edge_lens, work.priors, again=again
+        )
         work.timing["fusion"] = work.timing.get("fusion", 0.0) + (time.perf_counter() - tick) * 1e3
 
     def _combine_edge_focals(self, reading_edges, work: _PairWork) -> None:
         """Stage 5: each camera's focal length combined with its straight edges' where they agree, not
         through a lens the matches or the edges themselves show (one radial term leaves the edges bent
         enough to move their vanishing points: EuRoC's vFoV 2.11° → 3.51°, the chessboard set's 5.50° →
-        7.24°; docs/refine.md); then the fusion again with the combined focal lengths."""
+        7.24°; docs/refine.md); then the fusion again with the combined focal lengths, from the first
+        one's pose and choices (``fuse.pose.FusionStart``)."""
         reads, work.timing["manhattan"] = reading_edges.result()  # CPU time on the pool's thread
         tick = time.perf_counter()
         lens_sigmas = self.conf["manhattan"]["lens_sigmas"]
@@ -735,7 +742,10 @@ class Calibrator:
                 work.fits[side], work.priors[side] = self._with_manhattan(view, work.fits[side], reads[side])
         work.timing["manhattan"] += (time.perf_counter() - tick) * 1e3
         if any(prior is not None and prior.source == "lines" for prior in work.priors):
-            self._fuse_pose(work)
+            # from the first fusion's choices, but not on a turned rig: there the focal lengths' common
+            # scale is refined with the pose, a fit with more than one minimum that other focal lengths can
+            # send elsewhere (the car set's R 19.6° → 26.3° from the first one's start)
+            self._fuse_pose(work, again=None if work.pose.turned else work.pose.start)
 
     def _fit_gravity(self, work: _PairWork) -> None:
         """Stage 6: the matches' focal refinement (their ratio always; more where the cameras rotate), each

@@ -462,3 +462,54 @@ def test_a_turned_rig_gets_its_focal_length_from_the_matches_and_not_the_pose_he
     )  # fmt: skip
     assert pose.sigma_common_focal is None and not pose.notes
     assert abs(np.log(pose.focal_scale[0] * pose.focal_scale[1])) < 0.05  # the ratio only moves
+
+
+def test_a_fusion_again_with_other_focal_lengths_from_the_first_ones_choices_is_as_good_as_a_full_one(
+    monkeypatch,
+):
+    """The pipeline fuses twice when the vanishing points move the focal lengths by a few percent: the
+    second fusion refines once from the first's pose, inliers and choices (a lens, equal focal lengths)
+    and is as accurate as running every start and test again, with the same choices."""
+    rng = np.random.default_rng(53)
+    K = intrinsic_matrix(500, 640, 480)
+    D = np.array([-0.2, 0.04, 0.0, 0.0, 0.0])
+    import stereogeo_cli.fuse.pose as pose_module
+
+    errors = {"full": [], "again": []}
+    refinements = {"first": 0, "full": 0, "again": 0}
+    counting = [None]
+    refine_pose = pose_module._refine_pose
+
+    def counted(*args, **kwargs):
+        refinements[counting[0]] += 1
+        return refine_pose(*args, **kwargs)
+
+    monkeypatch.setattr(pose_module, "_refine_pose", counted)
+    for _ in range(10):
+        R, T = _rig(rng)
+        T = T / np.linalg.norm(T) * 0.4
+        m = _distorted_matches(rng, K, K, R, T, D)
+        kw = {"prior_R": R, "prior_t": T, "focal_sigma_rel": (0.1, 0.1)}
+        counting[0] = "first"
+        first = fuse_relative_pose(m, K, K, **kw)
+        K_moved = intrinsic_matrix(500 * 1.04, 640, 480)
+        counting[0] = "full"
+        full = fuse_relative_pose(m, K_moved, K_moved, **kw)
+        counting[0] = "again"
+        again = fuse_relative_pose(m, K_moved, K_moved, **kw, again=first.start)
+        assert again.source == "matches" and again.start is not None
+        assert (again.distortion != (0.0, 0.0), again.equal_focals) == (
+            first.distortion != (0.0, 0.0),
+            first.equal_focals,
+        )
+        assert abs(again.inliers - first.inliers) <= 0.05 * first.inliers
+        for name, pose in (("full", full), ("again", again)):
+            errors[name].append(
+                [np.degrees(rotation_error(pose.R, R)), _direction_error_deg(pose.t_direction, T)]
+            )
+    assert refinements["again"] == 2 * 10 and refinements["full"] >= 2 * refinements["again"]  # one fit each
+    full, again = np.array(errors["full"]), np.array(errors["again"])
+    # the same minimum on most rigs (the noise scale and the lens carried over), never a worse one by much
+    assert np.sum(np.abs(again - full).max(axis=1) < 0.02) >= 8, errors
+    assert np.median(again[:, 0]) < 1.1 * np.median(full[:, 0]) + 0.005, errors
+    assert np.median(again[:, 1]) < 1.1 * np.median(full[:, 1]) + 0.05, errors
