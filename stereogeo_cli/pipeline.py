@@ -282,16 +282,20 @@ class _Baseline(NamedTuple):
     sigma_rel: float | None
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system tells it, else all)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def network_threads() -> int:
     """The network's threads by default: one per core this process may use, but one. The feature matching
     and the straight edges' detection run on the pool's threads while ONNX Runtime runs; with a thread
     per core ONNX Runtime competes with them for every core (on two cores a warm ``calibrate`` took
     about 0.85× as long with one network thread as with two, measured side by side)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    return max(1, cores - 1)
+    return max(1, usable_cores() - 1)
 
 
 class Calibrator:

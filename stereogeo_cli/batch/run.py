@@ -21,7 +21,7 @@ import numpy as np
 
 from stereogeo_cli.batch.discovery import PairEntry, discover_pairs, select_shard
 from stereogeo_cli.errors import StereoGeoError
-from stereogeo_cli.pipeline import calibrator_conf
+from stereogeo_cli.pipeline import calibrator_conf, usable_cores
 
 RIG_FOLDER = "rig"  # --same-rig: the joint calibration's folder in OUT
 CSV_COLUMNS = (
@@ -243,7 +243,7 @@ def _run_pass(entries: list[PairEntry], job: PairJob, workers: int, calibrator, 
             outcomes[i] = calibrate_pair(calibrator(), entry, job)
             progress.finished(outcomes[i])
         return outcomes
-    total = job.threads if job.threads > 0 else (os.cpu_count() or 1)
+    total = job.threads if job.threads > 0 else usable_cores()
     per_worker = max(1, total // workers)
     job = PairJob(**{**job.__dict__, "threads": per_worker})
     # spawn: a fresh interpreter per worker (no forked ONNX Runtime / OpenCV thread pools)

@@ -326,9 +326,10 @@ def fuse_relative_pose(
         gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad, head_R, head_t,
         np.radians(conf["prior_rotation_sigma_deg"]), np.radians(conf["prior_direction_sigma_deg"]),
     )  # fmt: skip
-    errors0 = sampson_errors(fundamental_matrix(K_left, K_right, R0, t0), matches.left, matches.right)
-    noise = max(1.4826 * float(np.median(np.abs(errors0[mask0]))), conf["min_noise_px"])
-    if again is not None:  # its scale of the match noise, which the essential matrix's errors gave
+    if again is None:
+        errors0 = sampson_errors(fundamental_matrix(K_left, K_right, R0, t0), matches.left, matches.right)
+        noise = max(1.4826 * float(np.median(np.abs(errors0[mask0]))), conf["min_noise_px"])
+    else:  # its scale of the match noise, which the essential matrix's errors gave
         noise = again.noise_px
     joint = _Joint(matches, K_left, K_right, noise, priors, common, prior_t, conf)
     if again is None:
