@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -21,8 +22,9 @@ from typing import NamedTuple
 import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
-from stereogeo_cli.fuse import Matches, RelativePose, fuse_relative_pose, match_features, share_gravity
+from stereogeo_cli.fuse import Matches, RelativePose, fuse_relative_pose, share_gravity
 from stereogeo_cli.fuse.assemble import CameraEstimate, assemble, focal_sigmas
+from stereogeo_cli.fuse.matches import detect_features, match_detected
 from stereogeo_cli.fuse.pose import default_conf as fuse_conf
 from stereogeo_cli.fuse.scale import DepthField, baseline_from_depth
 from stereogeo_cli.fuse.scale import default_conf as scale_conf
@@ -39,6 +41,7 @@ from stereogeo_cli.network.runtime import (
     FieldNetwork,
     NetworkOutput,
     ViewFields,
+    check_model_path,
     default_model_path,
 )
 from stereogeo_cli.refine import CameraFit, combine_focal, parse_sigma_inflation, refine_camera
@@ -306,46 +309,91 @@ class Calibrator:
         threads: ONNX Runtime intra-op threads (0: one per core this process may use but one, which the
             feature matching takes while the network runs: :func:`network_threads`).
         conf: overrides of :data:`default_conf`.
+
+    The model opens on a thread of its own while the first pair's features are found; a missing model file
+    raises at once, one that cannot be opened at :meth:`ready` or at the first use.
     """
 
     def __init__(self, model_path: str | Path | None = None, threads: int = 0, conf: dict | None = None):
-        self.conf = {**default_conf, **(conf or {})}
+        self._conf = {**default_conf, **(conf or {})}
+        self._conf["lines"] = {**lines_conf, **self._conf["lines"]}
+        self._conf["plumb"] = {**plumb_conf, **self._conf["plumb"]}
+        self._conf["manhattan"] = {**manhattan_conf, **self._conf["manhattan"]}
+        self._conf["scale"] = {**scale_conf, **self._conf["scale"]}
         self.model_path = Path(model_path) if model_path is not None else default_model_path()
-        self.network = FieldNetwork(self.model_path, threads=threads or network_threads())
+        check_model_path(self.model_path)
+        # ONNX Runtime takes about as long to open the model (its graph optimisations) as the feature
+        # detection of a pair takes: it opens on a thread of its own, and the network waits for it
+        # only when first needed (:attr:`network`), while the pool's threads find the first pair's features.
+        self._opening = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-open")
+        self._opened = self._opening.submit(FieldNetwork, self.model_path, threads or network_threads())
+        self._opening.shutdown(wait=False)
+        self._network: FieldNetwork | None = None
+        self._configuring = threading.Lock()
+        # the features and the straight edges' detection need no network output: they run on the pool's
+        # threads while ONNX Runtime runs (all three release the GIL)
+        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-pool")
+
+    def ready(self) -> Calibrator:
+        """This calibrator once its model is open: a model file ONNX Runtime cannot open, or one that is not
+        a stereogeo network, raises :class:`StereoGeoError` here (or at the first use, without this)."""
+        self.network  # noqa: B018
+        return self
+
+    @property
+    def network(self) -> FieldNetwork:
+        """The network's session, once open (a bad model file raises here), with the conf set from what
+        the model records."""
+        if self._network is None:
+            with self._configuring:
+                if self._network is None:
+                    network = self._opened.result()
+                    self._configure(network)
+                    self._network = network
+        return self._network
+
+    @property
+    def conf(self) -> dict:
+        """The settings: :data:`default_conf`, the model's recorded sigmas and the caller's overrides."""
+        self.network  # noqa: B018 (the model's sigmas are part of it)
+        return self._conf
+
+    @property
+    def photo_sigma_scale(self) -> tuple[float, float, float]:
+        """The model's factors (roll, pitch, vFoV) that widen the reported sigmas (:meth:`reported_sigma`)."""
+        self.network  # noqa: B018
+        return self._photo_sigma_scale
+
+    @photo_sigma_scale.setter
+    def photo_sigma_scale(self, value: tuple[float, float, float]) -> None:
+        self.network  # noqa: B018 (else opening the model would set it back)
+        self._photo_sigma_scale = tuple(value)
+
+    def _configure(self, network: FieldNetwork) -> None:
+        """The conf's entries the model records."""
         # The refiner's sigmas treat field cells as independent; a network's errors are correlated, and the
         # model records how much to widen them (measured on validation data when it was exported).
         # It also records how much wider the reported sigmas must be on real photographs, where the network
         # errs more than on the renders those factors were measured on (photo_sigma_scale: reported_sigma).
         try:
-            inflation = parse_sigma_inflation(self.network.metadata.get("sigma_inflation", "1"))
-            photo = parse_sigma_inflation(
-                self.network.metadata.get("photo_sigma_scale", "1"), "photo sigma scale"
-            )
+            inflation = parse_sigma_inflation(network.metadata.get("sigma_inflation", "1"))
+            photo = parse_sigma_inflation(network.metadata.get("photo_sigma_scale", "1"), "photo sigma scale")
         except ValueError as error:
             raise StereoGeoError(f"model file {self.model_path} has invalid metadata: {error}") from None
-        self.conf["refine"] = {"sigma_inflation": inflation, **self.conf["refine"]}
-        self.photo_sigma_scale = photo if isinstance(photo, tuple) else (photo, photo, photo)
+        conf = self._conf
+        conf["refine"] = {"sigma_inflation": inflation, **conf["refine"]}
+        self._photo_sigma_scale = photo if isinstance(photo, tuple) else (photo, photo, photo)
         # The pose head's own 1-sigma (68th percentiles of its validation errors), when the model records it:
         # how strongly the fusion leans on it, and its sigma when it is all there is.
         measured = {
-            "prior_rotation_sigma_deg": self.network.metadata.get("pose_sigma_rotation_deg"),
-            "prior_direction_sigma_deg": self.network.metadata.get("pose_sigma_direction_deg"),
+            "prior_rotation_sigma_deg": network.metadata.get("pose_sigma_rotation_deg"),
+            "prior_direction_sigma_deg": network.metadata.get("pose_sigma_direction_deg"),
         }
-        self.conf["lines"] = {**lines_conf, **self.conf["lines"]}
-        self.conf["plumb"] = {**plumb_conf, **self.conf["plumb"]}
-        self.conf["manhattan"] = {**manhattan_conf, **self.conf["manhattan"]}
-        self.conf["fuse"] = {
-            **{k: float(v) for k, v in measured.items() if v is not None},
-            **self.conf["fuse"],
-        }
-        scale_sigma = self.network.metadata.get("pose_sigma_scale_rel")
+        conf["fuse"] = {**{k: float(v) for k, v in measured.items() if v is not None}, **conf["fuse"]}
+        scale_sigma = network.metadata.get("pose_sigma_scale_rel")
         self._learned_scale_sigma = float(scale_sigma) if scale_sigma is not None else None
-        depth_sigma = self.network.metadata.get("depth_sigma_scale_rel")
+        depth_sigma = network.metadata.get("depth_sigma_scale_rel")
         self._depth_scale_sigma = float(depth_sigma) if depth_sigma is not None else None
-        self.conf["scale"] = {**scale_conf, **self.conf["scale"]}
-        # the feature matching and the straight edges' detection need no network output: they run on
-        # other threads while ONNX Runtime runs (all three release the GIL)
-        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-pool")
 
     def reported_sigma(
         self, fit: CameraFit, focal_from_fields: bool = True, spread_rel: float = 0.0
@@ -630,11 +678,11 @@ class Calibrator:
         """:meth:`calibrate` with the images in the order given: the stages below, in order."""
         start = time.perf_counter()
         check_pair(left, right)
-        matching, finding_edges = self._start_image_work(left, right)
+        features, finding_edges = self._start_image_work(left, right)
         work = self._fit_cameras(self._read_fields(left, right), (focal_left, focal_right), exif)
         reading_edges = self._start_edge_focals(finding_edges, work)
         self._find_lines(left, right, work)
-        work.matches, work.timing["matching"] = matching.result()
+        work.matches, work.timing["matching"] = self._matches(features)
         self._fuse_pose(work)
         if reading_edges is not None:
             self._combine_edge_focals(reading_edges, work)
@@ -644,17 +692,29 @@ class Calibrator:
         return self._assemble(work, baseline)
 
     def _start_image_work(self, left: np.ndarray, right: np.ndarray):
-        """Feature matching and the edges' line segments need no network output: they run on the pool's
-        threads while ONNX Runtime runs (all release the GIL), so on two cores they overlap. Returns the two
-        futures (the second None when the vanishing points are off)."""
-        matching = self._pool.submit(_timed, match_features, left, right, self.conf["match"])
+        """The two images' features and the edges' line segments need no network output: they run on the
+        pool's threads while ONNX Runtime runs (all release the GIL). The features go first, one image per
+        thread: the fusion waits for them, while the edges wait only for its end (their Manhattan frames
+        are fitted while it runs). Returns the features' futures and the edges' (None when the vanishing
+        points are off)."""
+        conf = self._conf  # (not the model's entries: the network may still be opening)
+        features = tuple(
+            self._pool.submit(_timed, detect_features, image, conf["match"]) for image in (left, right)
+        )
         finding_edges = None
-        if self.conf["manhattan"]["enabled"]:
-            short = self.conf["manhattan"]["max_short_side"]
+        if conf["manhattan"]["enabled"]:
+            short = conf["manhattan"]["max_short_side"]
             finding_edges = self._pool.submit(
                 _timed, lambda: [detect_segments(image, short) for image in (left, right)]
             )
-        return matching, finding_edges
+        return features, finding_edges
+
+    def _matches(self, features) -> tuple[Matches, float]:
+        """The matches between the two images' features (``_start_image_work``'s futures), and the
+        milliseconds spent detecting and matching them."""
+        (left, left_ms), (right, right_ms) = (future.result() for future in features)
+        matches, match_ms = _timed(match_detected, left, right, self.conf["match"])
+        return matches, left_ms + right_ms + match_ms
 
     def _read_fields(self, left: np.ndarray, right: np.ndarray) -> _PairWork:
         """Stage 1, the network: both views' fields and the pose head's pose; a view too ambiguous to
@@ -705,9 +765,9 @@ class Calibrator:
         return self._pool.submit(self._edge_focals, finding_edges, tuple(work.fits), needed)
 
     def _find_lines(self, left: np.ndarray, right: np.ndarray, work: _PairWork) -> None:
-        """Stage 3, while the matching thread finishes (the fusion needs it): each image's line segments,
-        and the lens their straight edges show (evidence in the fusion's choice of a lens). The segments'
-        distortion is taken out once the fusion has measured it."""
+        """Stage 3, while the pool's threads finish the features (the fusion needs them): each image's line
+        segments, and the lens their straight edges show (evidence in the fusion's choice of a lens). The
+        segments' distortion is taken out once the fusion has measured it."""
         if not self.conf["lines"]["enabled"]:
             return
         tick = time.perf_counter()

@@ -58,25 +58,37 @@ def mutual_ratio_matches(a: np.ndarray, b: np.ndarray, ratio: float, mutual: boo
     return np.column_stack([np.nonzero(keep)[0], best[keep]])
 
 
-def match_features(left: np.ndarray, right: np.ndarray, conf: dict | None = None) -> Matches:
-    """SIFT matches between two images (H x W x 3 uint8 RGB, or grey), in original pixel coordinates."""
+@dataclass
+class Features:
+    """One image's SIFT keypoints: their pixel coordinates [N x 2] in the original (not shrunk) image and
+    their descriptors [N x 128] (None where the detector found none)."""
+
+    xy: np.ndarray
+    descriptors: np.ndarray | None
+
+
+def detect_features(image: np.ndarray, conf: dict | None = None) -> Features:
+    """SIFT keypoints of one image (H x W x 3 uint8 RGB, or grey), in original pixel coordinates. The two
+    images of a pair are independent: the pipeline detects them on two threads."""
     conf = {**default_conf, **(conf or {})}
-    sift = cv2.SIFT_create(nfeatures=conf["max_features"])
-    keypoints, descriptors, scales = [], [], []
-    for image in (left, right):
-        grey, scale = _grey_and_scale(image, conf["max_side"])
-        kp, desc = sift.detectAndCompute(grey, None)
-        keypoints.append(kp)
-        descriptors.append(desc)
-        scales.append(scale)
+    grey, scale = _grey_and_scale(image, conf["max_side"])
+    keypoints, descriptors = cv2.SIFT_create(nfeatures=conf["max_features"]).detectAndCompute(grey, None)
+    xy = np.array([kp.pt for kp in keypoints], dtype=float).reshape(-1, 2)
+    return Features((xy + 0.5) / scale - 0.5, descriptors)  # pixel-centre-correct undo of the shrink
+
+
+def match_detected(left: Features, right: Features, conf: dict | None = None) -> Matches:
+    """The matches between two images' features (:func:`mutual_ratio_matches` on their descriptors)."""
+    conf = {**default_conf, **(conf or {})}
     empty = Matches(np.zeros((0, 2)), np.zeros((0, 2)))
-    if descriptors[0] is None or descriptors[1] is None or len(keypoints[0]) < 2 or len(keypoints[1]) < 2:
+    if left.descriptors is None or right.descriptors is None or len(left.xy) < 2 or len(right.xy) < 2:
         return empty
-    idx = mutual_ratio_matches(descriptors[0], descriptors[1], conf["ratio"], conf["mutual"])
+    idx = mutual_ratio_matches(left.descriptors, right.descriptors, conf["ratio"], conf["mutual"])
     if len(idx) == 0:
         return empty
-    pts = []
-    for side, scale in enumerate(scales):
-        xy = np.array([keypoints[side][k].pt for k in idx[:, side]], dtype=float)
-        pts.append((xy + 0.5) / scale - 0.5)  # pixel-centre-correct undo of the shrink
-    return Matches(pts[0], pts[1])
+    return Matches(left.xy[idx[:, 0]], right.xy[idx[:, 1]])
+
+
+def match_features(left: np.ndarray, right: np.ndarray, conf: dict | None = None) -> Matches:
+    """SIFT matches between two images (H x W x 3 uint8 RGB, or grey), in original pixel coordinates."""
+    return match_detected(detect_features(left, conf), detect_features(right, conf), conf)
