@@ -294,6 +294,44 @@ def test_the_joint_refinement_jacobian_is_the_derivative_of_its_residuals():
     assert np.all(np.abs(J - numeric) <= 1e-5 * scale + 1e-7), np.abs(J - numeric).max(axis=0) / scale
 
 
+def test_a_lens_held_at_its_bound_gets_its_derivative_and_steps_the_fit_can_take():
+    """Matches of a mild pincushion lens (k +0.05) fitted with k bounded at 0 (barrel only, the default):
+    k sits at its bound. Its Jacobian column is the one-sided derivative into the bounds (a clipped central
+    difference read half of it); the gradient pulls it beyond the bound, so the step holds it there (else the
+    step is clipped, is not the one the quadratic model promised, and the fit rejects every other step and
+    creeps); the covariance keeps the whole Hessian; the fit converges within its tries."""
+    from stereogeo_cli.fuse.pose import _PoseProblem, _Priors, _State
+    from stereogeo_cli.fuse.pose import default_conf as fuse_conf
+    from stereogeo_cli.refine.levenberg import Settings, levenberg_marquardt
+
+    rng = np.random.default_rng(5)
+    K = intrinsic_matrix(500, 640, 480)
+    R, T = _rig(rng)
+    m = _matches(rng, K, K, R, T, count=250, noise_px=0.3, outliers=0.0)
+    # distort the left points: undistorted = distorted / (1 + k r_d²), solved for r_d
+    k_true, centre = 0.01, K[:2, 2]
+    u = (m.left - centre) / K[0, 0]
+    r_u = np.linalg.norm(u, axis=1, keepdims=True)
+    r_d = (1 - np.sqrt(1 - 4 * k_true * r_u**2)) / (2 * k_true * r_u)
+    left = centre + u * (r_d / r_u) * K[0, 0]
+    priors = _Priors(None, None, None, None, None, np.radians(5.0), np.radians(15.0))
+    bounds = ((-0.5, 0.0), (-0.5, 0.0))
+    problem = _PoseProblem(left, m.right, K, K, 0.3, priors, None, bounds, fuse_conf, None)
+    state = _State(rotation_from_axis_angle([0.002, -0.001, 0.001]) @ R, T / np.linalg.norm(T), 0, 0, (0, 0))
+    _, J = problem.jacobian(state)
+    h = 1e-6
+    inward = (problem.residuals(state._replace(k=(-h, 0.0))) - problem.residuals(state)) / -h
+    assert np.allclose(J[:, 5], inward, rtol=1e-3, atol=1e-6)
+    assert problem.cost(state._replace(k=(-1e-3, 0.0))) > problem.cost(state)  # k pulls beyond its bound
+    H, g = problem.normal_equations(state)
+    assert g[5] == 0.0 and not H[5, :5].any() and H[5, 5] > 0
+    assert problem.hessian[5, :5].any()
+    settings = Settings(fuse_conf["iterations"], 1e-3, 1e6, 1e-6, 1e-10)
+    fit = levenberg_marquardt(state, problem.cost, problem.normal_equations, problem.moved, settings)
+    assert fit.converged and fit.x.k[0] == 0.0
+    assert rotation_error(fit.x.R, R) < np.radians(0.2)
+
+
 def test_the_pose_sigmas_take_in_the_focal_lengths_uncertainty():
     """Both focal lengths off by a common factor (10 % 1-sigma, as the fusion is told): the matches cannot see
     it, and the translation direction moves with it. The reported sigmas now hold about 68 % of the errors;

@@ -148,9 +148,10 @@ def sampson_errors(F: np.ndarray, left: np.ndarray, right: np.ndarray) -> np.nda
     return _sampson(F, left, right)[0]
 
 
-def _sampson(F: np.ndarray, left: np.ndarray, right: np.ndarray, gradient: bool = False):
+def _sampson(F: np.ndarray, left: np.ndarray, right: np.ndarray, dF: np.ndarray | None = None):
     """Sampson errors s = a / √D [N] (a = x_rᵀ F x_l; D = the squared first two entries of F x_l and
-    Fᵀ x_r), and with ``gradient`` their derivatives [N x 9] with respect to F's entries (row-major)."""
+    Fᵀ x_r), and with ``dF`` [P x 3 x 3] (F's derivatives with respect to P parameters) the errors'
+    derivatives [N x P] with respect to those parameters."""
     pl = np.column_stack([left, np.ones(len(left))])
     pr = np.column_stack([right, np.ones(len(right))])
     Fl = pl @ F.T
@@ -159,16 +160,18 @@ def _sampson(F: np.ndarray, left: np.ndarray, right: np.ndarray, gradient: bool 
     denom = np.maximum(Fl[:, 0] ** 2 + Fl[:, 1] ** 2 + Ftr[:, 0] ** 2 + Ftr[:, 1] ** 2, 1e-300)
     root = np.sqrt(denom)
     errors = algebraic / root
-    if not gradient:
+    if dF is None:
         return errors, None
-    # ∂a/∂F_ij = r_i l_j;  ∂D/∂F_ij = 2 (F l)_i l_j [i < 2] + 2 (Fᵀ r)_j r_i [j < 2]
-    da = pr[:, :, None] * pl[:, None, :]
-    Fl2, Ftr2 = Fl.copy(), Ftr.copy()
-    Fl2[:, 2] = 0.0
-    Ftr2[:, 2] = 0.0
-    dD = 2.0 * (Fl2[:, :, None] * pl[:, None, :] + pr[:, :, None] * Ftr2[:, None, :])
-    grad = da / root[:, None, None] - 0.5 * (errors / denom)[:, None, None] * dD
-    return errors, grad.reshape(len(errors), 9)
+    # per parameter p: ∂a = x_rᵀ·dF_p·x_l; ∂D = 2 Σ_{i<2} ((F x_l)_i (dF_p x_l)_i + (Fᵀ x_r)_i (dF_pᵀ x_r)_i)
+    n, count = len(errors), len(dF)
+    dF_l = (pl @ dF.reshape(-1, 3).T).reshape(n, count, 3)  # dF_p·x_l
+    dFt_r = (pr @ dF.transpose(0, 2, 1).reshape(-1, 3).T).reshape(n, count, 3)  # dF_pᵀ·x_r
+    d_algebraic = np.einsum("npi,ni->np", dF_l, pr)
+    d_denom = 2.0 * (
+        np.einsum("npi,ni->np", dF_l[:, :, :2], Fl[:, :2])
+        + np.einsum("npi,ni->np", dFt_r[:, :, :2], Ftr[:, :2])
+    )
+    return errors, d_algebraic / root[:, None] - 0.5 * (errors / denom)[:, None] * d_denom
 
 
 def essential_pose(matches: Matches, K_left: np.ndarray, K_right: np.ndarray, conf: dict | None = None):
@@ -754,6 +757,7 @@ class _PoseProblem:
         # F = M_rᵀ E M_l with M = K⁻¹ of the scaled K: diag(e⁻ˢ, e⁻ˢ, 1)·K⁻¹ (the principal point stays)
         self.inverse = (np.linalg.inv(K_left), np.linalg.inv(K_right))
         self.undistorted: dict = {}
+        self.hessian: np.ndarray | None = None  # the last normal equations' whole Hessian
 
     def log_scales(self, d: float, c: float) -> tuple[float, float]:
         if self.split is None:
@@ -808,8 +812,6 @@ class _PoseProblem:
         M_l, M_r = self.inverse_K(0, s_l), self.inverse_K(1, s_r)
         E = essential_matrix(R, t)
         F = M_r.T @ E @ M_l
-        sampson, dS = _sampson(F, self.points(0, k[0]), self.points(1, k[1]), gradient=True)
-        r = np.concatenate([sampson / noise, self.prior_residuals(state)])
         basis = tangent_basis(t)
         dE = [skew(t) @ skew(e) @ R for e in np.eye(3)] + [skew(basis[:, j]) @ R for j in range(2)]
         dF = [M_r.T @ dE_i @ M_l for dE_i in dE]
@@ -818,8 +820,10 @@ class _PoseProblem:
             dF.append(split.w_right * M_r.T @ P @ E @ M_l - split.w_left * M_r.T @ E @ P @ M_l)
         if self.common is not None:  # ∂M/∂c = −P·M on both sides
             dF.append(-(M_r.T @ P @ E @ M_l) - M_r.T @ E @ P @ M_l)
+        sampson, dS = _sampson(F, self.points(0, k[0]), self.points(1, k[1]), np.stack(dF))
+        r = np.concatenate([sampson / noise, self.prior_residuals(state)])
         J = np.zeros((len(r), self.n_params))
-        J[:n_data, : self.n_base] = dS @ np.stack([m.ravel() for m in dF], axis=1) / noise
+        J[:n_data, : self.n_base] = dS / noise
         row = n_data  # the priors, in the order of _Priors.residuals and prior_residuals
         if priors.gravity_left is not None:
             J[row : row + 3, :3] = -skew(R @ priors.gravity_left) / priors.gravity_sigma
@@ -841,12 +845,13 @@ class _PoseProblem:
             step = np.zeros(self.n_params)
             step[i] = self.eps
             k_plus, k_minus = self.moved(state, step).k, self.moved(state, -step).k
+            side = i - self.n_base
+            # over the k actually moved: at a bound one side of the difference is clipped to it
             J[:n_data, i] = (
                 _sampson(F, self.points(0, k_plus[0]), self.points(1, k_plus[1]))[0]
                 - _sampson(F, self.points(0, k_minus[0]), self.points(1, k_minus[1]))[0]
-            ) / (2 * self.eps * noise)
-            side = i - self.n_base
-            J[row + side, i] = (k_plus[side] - k_minus[side]) / (2 * self.eps * self.sigma_k)
+            ) / ((k_plus[side] - k_minus[side]) * noise)
+            J[row + side, i] = 1.0 / self.sigma_k
         return r, J
 
     def cost(self, state: _State) -> float:
@@ -858,10 +863,25 @@ class _PoseProblem:
         return float(np.sum(np.where(data <= k, data * data, 2 * k * data - k * k)) + priors @ priors)
 
     def normal_equations(self, state: _State) -> tuple[np.ndarray, np.ndarray]:
-        """Jᵀ·W·J and Jᵀ·W·r with the Huber weights at ``state``: the Gauss–Newton form of :meth:`cost`."""
+        """Jᵀ·W·J and Jᵀ·W·r with the Huber weights at ``state``: the Gauss–Newton form of :meth:`cost`,
+        kept whole in ``hessian`` (the covariance's). For the step, a camera's k that sits at a bound with
+        its gradient pointing beyond it is held: its row and column cleared but the diagonal, its gradient 0.
+        A step across the bound would be clipped, and the clipped step is not the one the quadratic model
+        promised (the fit then rejected every other step and crept)."""
         r, J = self.jacobian(state)
         w = self.weights(r)
-        return J.T @ (J * w[:, None]), J.T @ (w * r)
+        H, g = J.T @ (J * w[:, None]), J.T @ (w * r)
+        self.hessian = H
+        if self.k_bounds is None:
+            return H, g
+        H, g = H.copy(), g.copy()
+        for side, (low, high) in enumerate(self.k_bounds):
+            i, k = self.n_base + side, state.k[side]
+            if (k >= high and g[i] < 0.0) or (k <= low and g[i] > 0.0):
+                diagonal = H[i, i]
+                H[i, :], H[:, i], g[i] = 0.0, 0.0, 0.0
+                H[i, i] = diagonal
+        return H, g
 
     def weights(self, r: np.ndarray) -> np.ndarray:
         """Huber weights on the Sampson errors; the priors weigh 1."""
@@ -895,4 +915,5 @@ def _refine_pose(
     fit = levenberg_marquardt(state, problem.cost, problem.normal_equations, problem.moved, settings)
     r = problem.residuals(fit.x)
     scales = problem.log_scales(fit.x.d, fit.x.c)
-    return fit.x, fit.H, scales, float(np.sum(problem.weights(r) * r * r))
+    # the loop's last normal equations are at its final point: their whole Hessian, no k held
+    return fit.x, problem.hessian, scales, float(np.sum(problem.weights(r) * r * r))
