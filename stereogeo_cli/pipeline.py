@@ -47,6 +47,8 @@ from stereogeo_cli.network.runtime import (
 from stereogeo_cli.refine import CameraFit, combine_focal, parse_sigma_inflation, refine_camera
 from stereogeo_cli.refine.lines import default_conf as lines_conf
 from stereogeo_cli.refine.lines import detect_segments, detector_pixel, gravity_with_lines
+from stereogeo_cli.refine.lm import FieldSamples, field_samples
+from stereogeo_cli.refine.lm import default_conf as refine_default_conf
 from stereogeo_cli.refine.manhattan import ManhattanFocal, manhattan_focal
 from stereogeo_cli.refine.manhattan import default_conf as manhattan_conf
 from stereogeo_cli.refine.plumb import PlumbLens, plumb_line_distortion
@@ -333,6 +335,7 @@ class Calibrator:
         # the features and the straight edges' detection need no network output: they run on the pool's
         # threads while ONNX Runtime runs (all three release the GIL)
         self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-pool")
+        self._view_samples: dict[int, tuple[ViewFields, FieldSamples]] = {}
 
     def ready(self) -> Calibrator:
         """This calibrator once its model is open: a model file ONNX Runtime cannot open, or one that is not
@@ -429,12 +432,29 @@ class Calibrator:
             lines = math.log(prior.focal_px / prior.fields_focal_px)
         return self.conf["read_spread"] * math.hypot(lines, math.log(scale))
 
-    def _refine_view(self, view: ViewFields, known_focal: float | None) -> CameraFit:
-        """One camera's fit to its fields, in the original image's pixels."""
+    def _samples(self, view: ViewFields) -> FieldSamples:
+        """The samples of ``view``'s fields the refiner fits, taken once per view (a camera is fitted up to
+        three times: its fields, a combined focal length held, its vertical segments)."""
+        kept = self._view_samples.get(id(view))
+        if kept is None or kept[0] is not view:
+            conf = {**refine_default_conf, **self.conf["refine"]}
+            samples = field_samples(
+                view.up, view.latitude, view.up_confidence, view.latitude_confidence, view.pixel_xy, conf
+            )
+            if len(self._view_samples) >= 4:  # the views of the pair at hand only
+                self._view_samples.clear()
+            kept = self._view_samples[id(view)] = (view, samples)
+        return kept[1]
+
+    def _refine_view(
+        self, view: ViewFields, known_focal: float | None, gravity: np.ndarray | None = None
+    ) -> CameraFit:
+        """One camera's fit to its fields, in the original image's pixels (from ``gravity``, where given)."""
         fit = refine_camera(
             view.up, view.latitude, view.up_confidence, view.latitude_confidence,
             image_size=view.image_size, pixel_xy=view.pixel_xy,
-            focal_prior=self._focal_prior(view, known_focal), conf=self.conf["refine"],
+            focal_prior=self._focal_prior(view, known_focal), gravity_init=gravity,
+            samples=self._samples(view), conf=self.conf["refine"],
         )  # fmt: skip
         return fit.in_original_pixels(view.resize_crop)
 
@@ -459,7 +479,7 @@ class Calibrator:
         if known_focal is not None or prior is None:
             return fit, None, None
         focal, sigma = combine_focal(fit.focal_px, fit.sigma["focal_px"], prior.focal_px, prior.sigma_px)
-        combined = self._held_at(view, focal, sigma)
+        combined = self._held_at(view, fit, focal, sigma)
         apart = abs(math.log(fit.focal_px / prior.focal_px))
         fields_sigma = fit.sigma["focal_px"] / fit.focal_px
         fields_sigma = fields_sigma if math.isfinite(fields_sigma) else 0.0
@@ -528,10 +548,10 @@ class Calibrator:
             pose = hold_alike_focals(pose, fit_left, fit_right, self.conf["equal_focal_fields_sigmas"])
         return pose
 
-    def _held_at(self, view: ViewFields, focal: float, sigma: float) -> CameraFit:
-        """The fit of ``view`` whose focal length is held at a combined ``focal`` (original pixels) with that
-        1-sigma, the gravity fitted again for it."""
-        return self._refine_view(view, focal).with_focal_sigma(sigma / focal)
+    def _held_at(self, view: ViewFields, fit: CameraFit, focal: float, sigma: float) -> CameraFit:
+        """``fit`` of ``view`` with its focal length held at a combined ``focal`` (original pixels) with that
+        1-sigma, the gravity fitted again for it (from ``fit``'s)."""
+        return self._refine_view(view, focal, fit.gravity_up).with_focal_sigma(sigma / focal)
 
     def _edge_focals(
         self, finding_edges, fits: tuple[CameraFit, CameraFit], needed: list[bool]
@@ -580,7 +600,7 @@ class Calibrator:
             "lines", found.focal_px, found.sigma_rel * found.focal_px, fit.focal_px,
             fields_sigma * fit.focal_px, focal, segments=tuple(found.families),
         )  # fmt: skip
-        return self._held_at(view, focal, sigma), entry
+        return self._held_at(view, fit, focal, sigma), entry
 
     def _with_lines(
         self,
@@ -598,10 +618,11 @@ class Calibrator:
         K = intrinsic_matrix(fit.focal_px, fit.width, fit.height)
         ends = undistort_division(np.asarray(segments, dtype=float).reshape(-1, 2), K, k)
         segments = view.resize_crop.points_to_output(ends).reshape(-1, 4)
+        start = (fit.gravity_up, view.resize_crop.focal_to_output(fit.focal_px))  # the fit at hand
         found = gravity_with_lines(
             view.up, view.latitude, view.up_confidence, view.latitude_confidence, segments,
-            image_size=view.image_size, pixel_xy=view.pixel_xy,
-            focal_prior=self._focal_prior(view, focal), conf=lines, refine_conf=self.conf["refine"],
+            image_size=view.image_size, pixel_xy=view.pixel_xy, focal_prior=self._focal_prior(view, focal),
+            samples=self._samples(view), start=start, conf=lines, refine_conf=self.conf["refine"],
         )  # fmt: skip
         if found is None:
             return fit, 0

@@ -101,6 +101,24 @@ def test_sub_sampling_keeps_the_fit():
         assert cost_full <= cost_fast <= cost_full * 1.005
 
 
+def test_samples_taken_once_give_the_fit_taken_from_the_fields():
+    """A camera fitted several times over (``samples`` from ``field_samples``) fits exactly as from its
+    fields, with the network's float32 fields too (the samples are taken in float64 either way)."""
+    from stereogeo_cli.refine.lm import default_conf, field_samples
+
+    rng = np.random.default_rng(14)
+    width, height, f, g, *_ = random_camera(rng, (320, 240))
+    up, lat, conf = noisy_fields(rng, width, height, f, g)
+    up, lat, conf = up.astype(np.float32), lat.astype(np.float32), conf.astype(np.float32)
+    samples = field_samples(up, lat, conf, conf, None, default_conf)
+    for focal_prior in (None, 1.1 * f):
+        direct = refine_camera(up, lat, conf, conf, focal_prior=focal_prior)
+        reused = refine_camera(up, lat, conf, conf, focal_prior=focal_prior, samples=samples)
+        assert reused.focal_px == direct.focal_px
+        assert np.array_equal(reused.gravity_up, direct.gravity_up)
+        assert np.array_equal(reused.covariance, direct.covariance)
+
+
 def test_confidence_zero_pixels_are_ignored():
     rng = np.random.default_rng(13)
     width, height, f, g, roll, pitch, vfov = random_camera(rng, (320, 240))

@@ -22,7 +22,7 @@ import numpy as np
 
 from stereogeo_cli.geometry.camera import principal_point
 from stereogeo_cli.geometry.fields import up_at
-from stereogeo_cli.refine.lm import CameraFit, refine_camera
+from stereogeo_cli.refine.lm import CameraFit, FieldSamples, refine_camera
 
 default_conf = {
     "enabled": True,
@@ -161,6 +161,8 @@ def gravity_with_lines(
     image_size: tuple[int, int],
     pixel_xy: tuple[np.ndarray, np.ndarray] | None,
     focal_prior=None,
+    samples: FieldSamples | None = None,
+    start: tuple[np.ndarray, float] | None = None,
     conf: dict | None = None,
     refine_conf: dict | None = None,
 ) -> LineGravity | None:
@@ -170,19 +172,29 @@ def gravity_with_lines(
     ``segments`` [N x 4] (pinhole: lens distortion taken out) and ``pixel_xy`` (None: one field cell per
     pixel) are in the pixels of ``image_size``. The focal length is fitted along (``focal_prior`` as in
     ``refine_camera``) but not returned: the segments' bend is no evidence of it (module docstring).
+    ``samples``: the fields' samples, where the caller has them (``refine_camera``). ``start``: (up
+    vector, focal length in the fields' pixels) of a fit the caller has (the fields' own): the first fit
+    starts there instead of from the fields' rough read.
     """
     conf = {**default_conf, **(conf or {})}
     if pixel_xy is None:
         h, w = np.shape(latitude)
         pixel_xy = tuple(np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float)))
     fields = (up, latitude, up_confidence, latitude_confidence)
-    common = {"image_size": image_size, "pixel_xy": pixel_xy, "focal_prior": focal_prior, "conf": refine_conf}
+    common = {
+        "image_size": image_size, "pixel_xy": pixel_xy, "focal_prior": focal_prior, "samples": samples,
+        "conf": refine_conf,
+    }  # fmt: skip
     found = vertical_segments(
         segments, field_sampler(up, pixel_xy), image_size, conf["min_length_px"], conf["angle_deg"]
     )
     if len(found) == 0:
         return None
-    first = refine_camera(*fields, line_up=found.observations(conf["weight"]), **common)
+    gravity_init, focal_init = (None, None) if start is None else start
+    first = refine_camera(
+        *fields, line_up=found.observations(conf["weight"]), gravity_init=gravity_init, focal_init=focal_init,
+        **common,
+    )  # fmt: skip
     found = vertical_segments(
         segments, camera_sampler(first), image_size, conf["min_length_px"], conf["refit_angle_deg"]
     )

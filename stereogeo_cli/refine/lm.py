@@ -379,6 +379,7 @@ def refine_camera(
     focal_init: float | None = None,
     gravity_init: np.ndarray | None = None,
     line_up: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+    samples: FieldSamples | None = None,
     conf: dict | None = None,
 ) -> CameraFit:
     """Fit focal length and gravity to one camera's perspective fields.
@@ -396,6 +397,8 @@ def refine_camera(
         focal_init, gravity_init: a start (e.g. from the pose head); otherwise per ``conf["init"]``.
         line_up: more up-direction samples besides the fields' (x [N], y [N], unit up [N x 2], weight [N]),
             e.g. vertical line segments (``refine/lines.py``); they do not take part in the start.
+        samples: :func:`field_samples` of these fields and ``conf`` where the caller has them already (a
+            camera is fitted several times over: with a held focal length, with its vertical segments).
         conf: overrides of :data:`default_conf`.
     Returns:
         A :class:`CameraFit` in the pixels of ``image_size``.
@@ -404,15 +407,16 @@ def refine_camera(
     latitude = np.asarray(latitude, dtype=float)
     width, height = (latitude.shape[1], latitude.shape[0]) if image_size is None else image_size
     cx, cy = principal_point(width, height)
-    field_samples = _field_samples(up, latitude, up_confidence, latitude_confidence, pixel_xy, conf)
-    cu, cl = field_samples[4:]
+    if samples is None:
+        samples = field_samples(up, latitude, up_confidence, latitude_confidence, pixel_xy, conf)
+    cu, cl = samples[4:]
 
     focal_value, focal_sigma = _parse_focal_prior(focal_prior)
     gravity_value, gravity_sigma = _parse_gravity_prior(gravity_prior)
     fix_focal = focal_value is not None and focal_sigma is None
     fix_gravity = gravity_value is not None and gravity_sigma is None
     problem = _Problem.of(
-        field_samples, line_up, (cx, cy), conf["huber_scale"],
+        samples, line_up, (cx, cy), conf["huber_scale"],
         None if focal_sigma is None else (np.log(focal_value), focal_sigma / focal_value),
         None if gravity_sigma is None else (gravity_value, gravity_sigma),
     )  # fmt: skip
@@ -421,7 +425,7 @@ def refine_camera(
     log_f_max = float(np.log(focal_from_vfov(np.radians(conf["min_vfov_deg"]), height)))
     g = gravity_init if gravity_init is not None else gravity_value
     log_f = focal_init if focal_init is not None else focal_value
-    g, log_f = _start(g, log_f, field_samples, width, height, conf)
+    g, log_f = _start(g, log_f, samples, width, height, conf)
     log_f = float(np.clip(log_f, log_f_min, log_f_max))
 
     def retract(state, step):
@@ -460,10 +464,14 @@ def refine_camera(
     )
 
 
-def _field_samples(up, latitude, up_confidence, latitude_confidence, pixel_xy, conf):
+FieldSamples = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def field_samples(up, latitude, up_confidence, latitude_confidence, pixel_xy, conf: dict) -> FieldSamples:
     """The fields sub-sampled on a regular grid of about ``conf["max_samples"]`` cells: (x, y, up [N x 2],
-    latitude, c_up, c_lat), unit up vectors, and cells with a non-finite or null up vector weighing 0."""
-    up = np.asarray(up, dtype=float)
+    latitude, c_up, c_lat), unit up vectors, and cells with a non-finite or null up vector weighing 0
+    (``conf``: the refiner's, :data:`default_conf` and its overrides)."""
+    up, latitude = np.asarray(up, dtype=float), np.asarray(latitude, dtype=float)
     H_, W_ = latitude.shape
     if up.shape != (H_, W_, 2):
         raise ValueError(f"up field must be {H_}x{W_}x2 to match the latitude field, got {up.shape}")
