@@ -58,15 +58,15 @@ def calibrate(
             raise StereoGeoError(f"focal sigma must be a fraction between 0 and 1, got {focal_sigma}")
         if focal_left is None and focal_right is None:
             raise StereoGeoError("a focal sigma needs a left or right focal length")
-    if calibrator is None:  # (its model opens on a thread of its own while the images load)
+    images = [image if isinstance(image, np.ndarray) else load_image(image) for image in (left, right)]
+    paths = [None if isinstance(image, np.ndarray) else Path(image) for image in (left, right)]
+    if calibrator is None:
         conf = calibrator_conf(pinhole, lines)
         if focal_sigma is not None:
             conf["known_focal_sigma"] = focal_sigma
         calibrator = Calibrator(model, threads=threads, conf=conf)
     elif focal_sigma is not None:
         raise StereoGeoError("give focal_sigma in the calibrator's conf (known_focal_sigma) when reusing one")
-    images = [image if isinstance(image, np.ndarray) else load_image(image) for image in (left, right)]
-    paths = [None if isinstance(image, np.ndarray) else Path(image) for image in (left, right)]
     found = None
     if exif and None not in paths:
         found = exif_focals(paths, images)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import os
-import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -41,7 +40,6 @@ from stereogeo_cli.network.runtime import (
     FieldNetwork,
     NetworkOutput,
     ViewFields,
-    check_model_path,
     default_model_path,
 )
 from stereogeo_cli.refine import CameraFit, combine_focal, parse_sigma_inflation, refine_camera
@@ -311,92 +309,47 @@ class Calibrator:
         threads: ONNX Runtime intra-op threads (0: one per core this process may use but one, which the
             feature matching takes while the network runs: :func:`network_threads`).
         conf: overrides of :data:`default_conf`.
-
-    The model opens on a thread of its own while the first pair's features are found; a missing model file
-    raises at once, one that cannot be opened at :meth:`ready` or at the first use.
     """
 
     def __init__(self, model_path: str | Path | None = None, threads: int = 0, conf: dict | None = None):
-        self._conf = {**default_conf, **(conf or {})}
-        self._conf["lines"] = {**lines_conf, **self._conf["lines"]}
-        self._conf["plumb"] = {**plumb_conf, **self._conf["plumb"]}
-        self._conf["manhattan"] = {**manhattan_conf, **self._conf["manhattan"]}
-        self._conf["scale"] = {**scale_conf, **self._conf["scale"]}
+        self.conf = {**default_conf, **(conf or {})}
         self.model_path = Path(model_path) if model_path is not None else default_model_path()
-        check_model_path(self.model_path)
-        # ONNX Runtime takes about as long to open the model (its graph optimisations) as the feature
-        # detection of a pair takes: it opens on a thread of its own, and the network waits for it
-        # only when first needed (:attr:`network`), while the pool's threads find the first pair's features.
-        self._opening = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-open")
-        self._opened = self._opening.submit(FieldNetwork, self.model_path, threads or network_threads())
-        self._opening.shutdown(wait=False)
-        self._network: FieldNetwork | None = None
-        self._configuring = threading.Lock()
-        # the features and the straight edges' detection need no network output: they run on the pool's
-        # threads while ONNX Runtime runs (all three release the GIL)
-        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-pool")
-        self._view_samples: dict[int, tuple[ViewFields, FieldSamples]] = {}
-
-    def ready(self) -> Calibrator:
-        """This calibrator once its model is open: a model file ONNX Runtime cannot open, or one that is not
-        a stereogeo network, raises :class:`StereoGeoError` here (or at the first use, without this)."""
-        self.network  # noqa: B018
-        return self
-
-    @property
-    def network(self) -> FieldNetwork:
-        """The network's session, once open (a bad model file raises here), with the conf set from what
-        the model records."""
-        if self._network is None:
-            with self._configuring:
-                if self._network is None:
-                    network = self._opened.result()
-                    self._configure(network)
-                    self._network = network
-        return self._network
-
-    @property
-    def conf(self) -> dict:
-        """The settings: :data:`default_conf`, the model's recorded sigmas and the caller's overrides."""
-        self.network  # noqa: B018 (the model's sigmas are part of it)
-        return self._conf
-
-    @property
-    def photo_sigma_scale(self) -> tuple[float, float, float]:
-        """The model's factors (roll, pitch, vFoV) that widen the reported sigmas (:meth:`reported_sigma`)."""
-        self.network  # noqa: B018
-        return self._photo_sigma_scale
-
-    @photo_sigma_scale.setter
-    def photo_sigma_scale(self, value: tuple[float, float, float]) -> None:
-        self.network  # noqa: B018 (else opening the model would set it back)
-        self._photo_sigma_scale = tuple(value)
-
-    def _configure(self, network: FieldNetwork) -> None:
-        """The conf's entries the model records."""
+        self.network = FieldNetwork(self.model_path, threads=threads or network_threads())
         # The refiner's sigmas treat field cells as independent; a network's errors are correlated, and the
         # model records how much to widen them (measured on validation data when it was exported).
         # It also records how much wider the reported sigmas must be on real photographs, where the network
         # errs more than on the renders those factors were measured on (photo_sigma_scale: reported_sigma).
         try:
-            inflation = parse_sigma_inflation(network.metadata.get("sigma_inflation", "1"))
-            photo = parse_sigma_inflation(network.metadata.get("photo_sigma_scale", "1"), "photo sigma scale")
+            inflation = parse_sigma_inflation(self.network.metadata.get("sigma_inflation", "1"))
+            photo = parse_sigma_inflation(
+                self.network.metadata.get("photo_sigma_scale", "1"), "photo sigma scale"
+            )
         except ValueError as error:
             raise StereoGeoError(f"model file {self.model_path} has invalid metadata: {error}") from None
-        conf = self._conf
-        conf["refine"] = {"sigma_inflation": inflation, **conf["refine"]}
-        self._photo_sigma_scale = photo if isinstance(photo, tuple) else (photo, photo, photo)
+        self.conf["refine"] = {"sigma_inflation": inflation, **self.conf["refine"]}
+        self.photo_sigma_scale = photo if isinstance(photo, tuple) else (photo, photo, photo)
         # The pose head's own 1-sigma (68th percentiles of its validation errors), when the model records it:
         # how strongly the fusion leans on it, and its sigma when it is all there is.
         measured = {
-            "prior_rotation_sigma_deg": network.metadata.get("pose_sigma_rotation_deg"),
-            "prior_direction_sigma_deg": network.metadata.get("pose_sigma_direction_deg"),
+            "prior_rotation_sigma_deg": self.network.metadata.get("pose_sigma_rotation_deg"),
+            "prior_direction_sigma_deg": self.network.metadata.get("pose_sigma_direction_deg"),
         }
-        conf["fuse"] = {**{k: float(v) for k, v in measured.items() if v is not None}, **conf["fuse"]}
-        scale_sigma = network.metadata.get("pose_sigma_scale_rel")
+        self.conf["lines"] = {**lines_conf, **self.conf["lines"]}
+        self.conf["plumb"] = {**plumb_conf, **self.conf["plumb"]}
+        self.conf["manhattan"] = {**manhattan_conf, **self.conf["manhattan"]}
+        self.conf["fuse"] = {
+            **{k: float(v) for k, v in measured.items() if v is not None},
+            **self.conf["fuse"],
+        }
+        scale_sigma = self.network.metadata.get("pose_sigma_scale_rel")
         self._learned_scale_sigma = float(scale_sigma) if scale_sigma is not None else None
-        depth_sigma = network.metadata.get("depth_sigma_scale_rel")
+        depth_sigma = self.network.metadata.get("depth_sigma_scale_rel")
         self._depth_scale_sigma = float(depth_sigma) if depth_sigma is not None else None
+        self.conf["scale"] = {**scale_conf, **self.conf["scale"]}
+        # the features and the straight edges' detection need no network output: they run on the pool's
+        # threads while ONNX Runtime runs (all three release the GIL)
+        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-pool")
+        self._view_samples: dict[int, tuple[ViewFields, FieldSamples]] = {}
 
     def reported_sigma(
         self, fit: CameraFit, focal_from_fields: bool = True, spread_rel: float = 0.0
@@ -718,7 +671,7 @@ class Calibrator:
         thread: the fusion waits for them, while the edges wait only for its end (their Manhattan frames
         are fitted while it runs). Returns the features' futures and the edges' (None when the vanishing
         points are off)."""
-        conf = self._conf  # (not the model's entries: the network may still be opening)
+        conf = self.conf
         features = tuple(
             self._pool.submit(_timed, detect_features, image, conf["match"]) for image in (left, right)
         )

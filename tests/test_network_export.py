@@ -201,25 +201,6 @@ def test_truncated_and_foreign_models_raise_stereogeo_error(tmp_path, exported):
         FieldNetwork(foreign)
 
 
-def test_a_calibrator_opens_its_model_while_it_starts_and_says_when_it_cannot(tmp_path, exported):
-    """The model opens on a thread of its own: a missing file fails at once, one ONNX Runtime cannot open at
-    ``ready()`` (or the first use), each as a StereoGeoError; a good one gives its recorded sigmas."""
-    from stereogeo_cli.pipeline import Calibrator
-
-    with pytest.raises(StereoGeoError, match="not found"):
-        Calibrator(tmp_path / "gone.onnx")
-    corrupt = tmp_path / "corrupt.onnx"
-    corrupt.write_bytes(b"this is not a model")
-    calibrator = Calibrator(corrupt)
-    with pytest.raises(StereoGeoError, match="not a valid ONNX"):
-        calibrator.ready()
-    with pytest.raises(StereoGeoError, match="not a valid ONNX"):
-        calibrator.calibrate(*np.random.default_rng(0).integers(0, 255, (2, 64, 64, 3), dtype=np.uint8))
-    path, _ = exported
-    good = Calibrator(path)
-    assert good.ready() is good and good.network.model_sha256 == FieldNetwork(path).model_sha256
-
-
 def test_export_cli_records_the_pose_heads_sigmas_and_calibrate_leans_on_them(tmp_path):
     from typer.testing import CliRunner
 

@@ -183,7 +183,7 @@ def _worker_task(entry: PairEntry, job: PairJob) -> PairOutcome:
         try:
             calibrator = Calibrator(
                 job.model, threads=job.threads, conf=calibrator_conf(job.pinhole, job.lines)
-            ).ready()
+            )
             _WORKER["calibrator"], _WORKER["key"] = calibrator, key
         except StereoGeoError as error:
             return PairOutcome(entry.name, entry.left, entry.right, "failed", str(error), fatal=True)
@@ -382,9 +382,7 @@ def run_batch(
         if not calibrator_cache:
             from stereogeo_cli.pipeline import Calibrator
 
-            calibrator_cache.append(
-                Calibrator(model, threads=threads, conf=calibrator_conf(pinhole, lines)).ready()
-            )
+            calibrator_cache.append(Calibrator(model, threads=threads, conf=calibrator_conf(pinhole, lines)))
         return calibrator_cache[0]
 
     if workers <= 1 and any(e.problem is None for e in entries):

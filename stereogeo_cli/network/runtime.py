@@ -105,14 +105,6 @@ def file_sha256(path: str | os.PathLike) -> str:
     return digest.hexdigest()
 
 
-def check_model_path(path: Path) -> None:
-    """Raises :class:`StereoGeoError` where ``path`` is not a file (what can be told before opening it)."""
-    if not path.exists():
-        raise StereoGeoError(f"model file not found: {path}")
-    if not path.is_file():
-        raise StereoGeoError(f"model path {path} is not a file")
-
-
 class FieldNetwork:
     """The exported StereoGeoNet in one ONNX Runtime session (CPU).
 
@@ -125,7 +117,10 @@ class FieldNetwork:
         import onnxruntime as ort
 
         self.path = Path(model_path)
-        check_model_path(self.path)
+        if not self.path.exists():
+            raise StereoGeoError(f"model file not found: {self.path}")
+        if not self.path.is_file():
+            raise StereoGeoError(f"model path {self.path} is not a file")
         options = ort.SessionOptions()
         options.intra_op_num_threads = int(threads)
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
