@@ -12,10 +12,14 @@
   value; pairs/s = pairs / wall time. With two or more counts, a straight line through (pairs, wall time)
   splits the time into a fixed start-up (interpreter, workers, network sessions) and a marginal rate.
 - ``--runs 0`` or ``--cold-runs 0`` skips that part.
-- ``--against OLD_CHECKOUT`` (e.g. a ``git worktree`` of an earlier commit): each measurement is made for
-  both checkouts, alternately, ``--rounds`` times (warm: each checkout in a fresh process of its own code),
-  and the ratios new / old are printed (time ratios for warm and cold, throughput ratios for the batch): a
-  speed claim is a ratio measured side by side on one machine, never an absolute time.
+- ``--against OLD_CHECKOUT`` (e.g. a ``git worktree`` of an earlier commit): the ratios new / old (time
+  ratios for warm and cold, throughput ratios for the batch): a speed claim is a ratio measured side by side
+  on one machine, never an absolute time. Warm: one process per checkout, each with its own code, one
+  Calibrator and the batch's pairs loaded; every pair is calibrated by both, one right after the other in
+  a random order, ``--runs`` passes over the pairs, and the ratio is the sum of the new times over the sum
+  of the old (with the median of the pairs' own ratios). Interleaving pair by pair keeps the machine's
+  load, which drifts by tens of percent over minutes on shared machines, out of the ratio. Cold and batch:
+  each checkout alternately, ``--rounds`` times, and the ratio of the medians over the rounds.
 
 The pairs are rendered with ``stereogeo make-data --size 480 --aspects 4:3 --portrait-share 0`` into a
 temporary folder (or ``--data``, reused if it holds enough pairs). The load average is printed with the
@@ -27,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import random
 import statistics
 import subprocess
 import sys
@@ -90,11 +95,61 @@ def warm(model: Path, left: Path, right: Path, runs: int, threads: int) -> dict:
             "writing_ms": round(statistics.median(writes), 1), "timing_ms": breakdown}  # fmt: skip
 
 
-def warm_in(root: Path, model: Path, left: Path, right: Path, runs: int, threads: int) -> dict:
-    """:func:`warm` in a fresh process with the code of the checkout ``root``."""
-    cmd = [sys.executable, __file__, "--warm-only", str(left), str(right), "--model", str(model), "--runs",
-           str(runs), "--threads", str(threads)]  # fmt: skip
-    return json.loads(run(cmd, root, capture_output=True, text=True, check=True).stdout)
+def warm_server(model: Path, folder: Path, pairs: int, threads: int) -> None:
+    """One Calibrator and the first ``pairs`` pairs of ``folder``, loaded; then, for each pair index read
+    from stdin, the milliseconds of that pair's ``calibrate`` on stdout (after two warm-up calibrations)."""
+    from stereogeo_cli.io import load_image
+    from stereogeo_cli.pipeline import Calibrator
+
+    calibrator = Calibrator(model, threads=threads)
+    names = sorted(p.name for p in (folder / "left").glob("*.png"))[:pairs]
+    images = [(load_image(folder / "left" / n), load_image(folder / "right" / n)) for n in names]
+    for pair in images[:2]:
+        calibrator.calibrate(*pair)
+    print("ready", flush=True)
+    for line in sys.stdin:
+        start = time.perf_counter()
+        calibrator.calibrate(*images[int(line)])
+        print((time.perf_counter() - start) * 1e3, flush=True)
+
+
+def warm_interleaved(roots: dict[str, Path], args, folder: Path, pairs: int) -> dict:
+    """Warm ``calibrate`` of each checkout in ``roots`` (old, new) in a process of its own, pair by pair,
+    one right after the other in a random order, ``args.runs`` passes over the pairs (module docstring)."""
+    servers = {}
+    for label, root in roots.items():
+        cmd = [sys.executable, __file__, "--warm-server", str(folder), "--pairs", str(pairs), "--model",
+               str(args.model), "--threads", str(args.threads)]  # fmt: skip
+        env = {
+            **os.environ,
+            "PYTHONPATH": os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])),
+        }
+        servers[label] = subprocess.Popen(
+            cmd, cwd=root, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
+    times: dict[str, list[float]] = {label: [] for label in roots}
+    try:
+        for server in servers.values():
+            if server.stdout.readline().strip() != "ready":
+                raise SystemExit("a warm-up process failed")
+        order = random.Random(0)
+        for _ in range(args.runs):
+            for index in range(pairs):
+                for label in order.sample(list(roots), len(roots)):
+                    servers[label].stdin.write(f"{index}\n")
+                    servers[label].stdin.flush()
+                    times[label].append(float(servers[label].stdout.readline()))
+    finally:
+        for server in servers.values():
+            server.stdin.close()
+            server.wait()
+    paired = [new / old for old, new in zip(times["old"], times["new"], strict=True)]
+    return {
+        "median_ms": {label: round(statistics.median(v), 1) for label, v in times.items()},
+        "calibrations": len(paired),
+        "time, new / old": round(sum(times["new"]) / sum(times["old"]), 3),
+        "median of the pairs' ratios": round(statistics.median(paired), 3),
+    }
 
 
 def cold(model: Path, left: Path, right: Path, runs: int, root: Path = ROOT) -> dict:
@@ -140,12 +195,11 @@ def side_by_side(args, folder: Path, left: Path, right: Path, counts: list[int])
     """Each measurement for the other checkout and this one, alternately, ``args.rounds`` times; the ratios
     new / old of the medians over the rounds."""
     roots = {"old": args.against.resolve(), "new": ROOT}
-    rounds: dict[str, dict[str, list[float]]] = {"warm_ms": {}, "cold_ms": {}, "batch_pairs_per_s": {}}
+    warm_ratio = warm_interleaved(roots, args, folder, max(counts)) if args.runs > 0 else None
+    print(json.dumps({"warm": warm_ratio}), file=sys.stderr)
+    rounds: dict[str, dict[str, list[float]]] = {"cold_ms": {}, "batch_pairs_per_s": {}}
     for _ in range(args.rounds):
         for label, root in roots.items():
-            if args.runs > 0:
-                ms = warm_in(root, args.model, left, right, args.runs, args.threads)["median_ms"]
-                rounds["warm_ms"].setdefault(label, []).append(ms)
             if args.cold_runs > 0:
                 ms = cold(args.model, left, right, args.cold_runs, root)["median_ms"]
                 rounds["cold_ms"].setdefault(label, []).append(ms)
@@ -157,9 +211,10 @@ def side_by_side(args, folder: Path, left: Path, right: Path, counts: list[int])
             print(json.dumps(rounds), file=sys.stderr)
     medians = {kind: {k: statistics.median(v) for k, v in per.items()} for kind, per in rounds.items()}
     ratios = {}
-    for kind in ("warm_ms", "cold_ms"):
-        if "old" in medians[kind]:
-            ratios[f"{kind[:-3]} time, new / old"] = round(medians[kind]["new"] / medians[kind]["old"], 3)
+    if warm_ratio is not None:
+        ratios["warm time, new / old"] = warm_ratio["time, new / old"]
+    if "old" in medians["cold_ms"]:
+        ratios["cold time, new / old"] = round(medians["cold_ms"]["new"] / medians["cold_ms"]["old"], 3)
     for w in args.workers.split(","):
         old, new = (
             medians["batch_pairs_per_s"][f"old, {w} workers"],
@@ -169,6 +224,7 @@ def side_by_side(args, folder: Path, left: Path, right: Path, counts: list[int])
     return {
         "before": load(),
         "against": str(roots["old"]),
+        "warm": warm_ratio,
         "rounds": rounds,
         "ratios": ratios,
         "after": load(),
@@ -179,20 +235,20 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "stereogeo.onnx")
     parser.add_argument("--data", type=Path, help="folder of rendered pairs (made if needed; default: temp)")
-    parser.add_argument("--runs", type=int, default=10, help="warm runs")
+    parser.add_argument(
+        "--runs", type=int, default=10, help="warm runs (with --against: passes over the pairs)"
+    )
     parser.add_argument("--cold-runs", type=int, default=3)
     parser.add_argument("--pairs", default="20", help="comma-separated pair counts for the batch throughput")
     parser.add_argument("--workers", default="1,2", help="comma-separated --workers values for the batch")
     parser.add_argument("--threads", type=int, default=0, help="ONNX Runtime threads (0: one per core)")
     parser.add_argument("--against", type=Path, help="another checkout, measured alternately with this one")
     parser.add_argument("--rounds", type=int, default=3, help="alternations with --against")
-    parser.add_argument(
-        "--warm-only", nargs=2, type=Path, help=argparse.SUPPRESS
-    )  # LEFT RIGHT: warm, as JSON
+    parser.add_argument("--warm-server", type=Path, help=argparse.SUPPRESS)  # FOLDER: warm_server
     args = parser.parse_args()
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before NumPy loads, as the stereogeo command does
-    if args.warm_only:
-        print(json.dumps(warm(args.model, *args.warm_only, args.runs, args.threads)))
+    if args.warm_server:
+        warm_server(args.model, args.warm_server, int(args.pairs.split(",")[-1]), args.threads)
         return
     if not args.model.is_file():
         raise SystemExit(f"no model at {args.model}: pass --model (e.g. an exported checkpoint)")
