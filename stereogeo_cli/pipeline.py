@@ -581,9 +581,9 @@ class Calibrator:
             return fit, 0
         return fit.with_new_gravity(found.gravity_up, found.covariance), found.segments
 
-    def _edge_lens(self, segments: np.ndarray, fit: CameraFit) -> PlumbLens | None:
+    def _edge_lens(self, segments: np.ndarray, image: np.ndarray) -> PlumbLens | None:
         """The lens the image's straight edges show (None: too few of them, or they disagree)."""
-        width, height = fit.width, fit.height
+        height, width = image.shape[:2]
         scale = detector_pixel(width, height, self.conf["lines"]["max_short_side"])
         centre = principal_point(width, height)
         return plumb_line_distortion(
@@ -652,11 +652,11 @@ class Calibrator:
         """:meth:`calibrate` with the images in the order given: the stages below, in order."""
         start = time.perf_counter()
         check_pair(left, right)
-        features, finding_edges = self._start_image_work(left, right)
+        features, finding_lines, finding_edges = self._start_image_work(left, right)
         work = self._fit_cameras(self._read_fields(left, right), (focal_left, focal_right), exif)
         reading_edges = self._start_edge_focals(finding_edges, work)
-        self._find_lines(left, right, work)
         work.matches, work.timing["matching"] = self._matches(features)
+        self._find_lines(finding_lines, work)
         self._fuse_pose(work)
         if reading_edges is not None:
             self._combine_edge_focals(reading_edges, work)
@@ -666,22 +666,26 @@ class Calibrator:
         return self._assemble(work, baseline)
 
     def _start_image_work(self, left: np.ndarray, right: np.ndarray):
-        """The two images' features and the edges' line segments need no network output: they run on the
-        pool's threads while ONNX Runtime runs (all release the GIL). The features go first, one image per
-        thread: the fusion waits for them, while the edges wait only for its end (their Manhattan frames
-        are fitted while it runs). Returns the features' futures and the edges' (None when the vanishing
-        points are off)."""
+        """The two images' features, their line segments and the lens those show, and the edges for the
+        vanishing points need no network output: they run on the pool's threads while ONNX Runtime and
+        the refiner run (all release the GIL). In the order the fusion needs them: the features, one image
+        per thread, then the segments and their lens; the edges last, as their Manhattan frames are fitted
+        while the fusion runs. Returns the features' futures, the segments' and the edges' (None where the
+        line segments or the vanishing points are off)."""
         conf = self.conf
         features = tuple(
             self._pool.submit(_timed, detect_features, image, conf["match"]) for image in (left, right)
         )
+        finding_lines = None
+        if conf["lines"]["enabled"]:
+            finding_lines = self._pool.submit(_timed, self._lines_and_lens, left, right)
         finding_edges = None
         if conf["manhattan"]["enabled"]:
             short = conf["manhattan"]["max_short_side"]
             finding_edges = self._pool.submit(
                 _timed, lambda: [detect_segments(image, short) for image in (left, right)]
             )
-        return features, finding_edges
+        return features, finding_lines, finding_edges
 
     def _matches(self, features) -> tuple[Matches, float]:
         """The matches between the two images' features (``_start_image_work``'s futures), and the
@@ -738,20 +742,26 @@ class Calibrator:
         needed = [work.held[side] is None and work.priors[side] is None for side in (0, 1)]
         return self._pool.submit(self._edge_focals, finding_edges, tuple(work.fits), needed)
 
-    def _find_lines(self, left: np.ndarray, right: np.ndarray, work: _PairWork) -> None:
-        """Stage 3, while the pool's threads finish the features (the fusion needs them): each image's line
-        segments, and the lens their straight edges show (evidence in the fusion's choice of a lens). The
-        segments' distortion is taken out once the fusion has measured it."""
-        if not self.conf["lines"]["enabled"]:
-            return
-        tick = time.perf_counter()
+    def _lines_and_lens(self, left: np.ndarray, right: np.ndarray) -> tuple[list, list]:
+        """Each image's line segments, and the lens their straight edges show (None where none is fitted or
+        they show none), on the pool's thread."""
         short = self.conf["lines"]["max_short_side"]
-        work.segments = [detect_segments(image, short) for image in (left, right)]
+        segments = [detect_segments(image, short) for image in (left, right)]
+        lenses = [None, None]
         fits_lens = self.conf["fuse"].get("distortion", fuse_conf["distortion"])
         if self.conf["plumb"]["enabled"] and fits_lens:
-            for side, (segments, fit) in enumerate(zip(work.segments, work.fits, strict=True)):
-                work.edge_lens[side] = self._edge_lens(segments, fit)
-        work.timing["lines"] = (time.perf_counter() - tick) * 1e3
+            lenses = [
+                self._edge_lens(found, image) for found, image in zip(segments, (left, right), strict=True)
+            ]
+        return segments, lenses
+
+    def _find_lines(self, finding_lines, work: _PairWork) -> None:
+        """Stage 3: each image's line segments, and the lens their straight edges show (evidence in the
+        fusion's choice of a lens), found on the pool's thread (``_lines_and_lens``). The segments'
+        distortion is taken out once the fusion has measured it."""
+        if finding_lines is None:
+            return
+        (work.segments, work.edge_lens), work.timing["lines"] = finding_lines.result()
 
     def _fuse_pose(self, work: _PairWork, again=None) -> None:
         """Stage 4: the relative pose from the matches, the fits and the pose head (``_fuse``); ``again``:
