@@ -69,6 +69,41 @@ def test_focal_length_and_focal_plane_resolution_of_a_resized_photo(tmp_path):
     assert found.focal_px == pytest.approx(4.2 / 0.0014 * 403 / 4032, rel=1e-4)
 
 
+def _png_chunks(data: bytes) -> list[tuple[bytes, bytes]]:
+    """(type, whole chunk with its length and CRC) of each chunk of a PNG file's bytes."""
+    chunks, at = [], 8
+    while at < len(data):
+        length = int.from_bytes(data[at : at + 4], "big")
+        chunks.append((data[at + 4 : at + 8], data[at : at + 12 + length]))
+        at += 12 + length
+    return chunks
+
+
+def test_a_png_gives_the_tags_of_its_exif_chunk_before_or_after_its_pixels(tmp_path):
+    """A PNG's EXIF (an eXIf chunk) is read from its chunk list, wherever the chunk sits, without decoding
+    the pixels; the focal length is the one Pillow reads from the whole file."""
+    exif = Image.Exif()
+    exif.get_ifd(0x8769)[0xA405] = 26
+    before = tmp_path / "before.png"
+    Image.new("RGB", (400, 300), (90, 120, 150)).save(before, exif=exif.tobytes())
+    chunks = _png_chunks(before.read_bytes())
+    kinds = [kind for kind, _ in chunks]
+    assert kinds.index(b"eXIf") < kinds.index(b"IDAT")
+    # the same file with the chunk moved behind the pixels, where some writers put it
+    moved = [c for kind, c in chunks if kind not in (b"eXIf", b"IEND")]
+    after = tmp_path / "after.png"
+    after.write_bytes(b"\x89PNG\r\n\x1a\n" + b"".join(moved) + dict(chunks)[b"eXIf"] + dict(chunks)[b"IEND"])
+    with Image.open(after) as image:
+        assert dict(image.getexif().get_ifd(0x8769))[0xA405] == 26  # Pillow agrees the file is whole
+    for path in (before, after):
+        found, reason = read_exif_focal(path, 400, 300)
+        assert reason is None and found.tag == "FocalLengthIn35mmFilm" and found.value_mm == 26
+        assert found.focal_px == pytest.approx(26 * 500 / DIAGONAL_35MM, rel=1e-12)
+    cut = tmp_path / "cut.png"
+    cut.write_bytes(before.read_bytes()[:40])  # a file cut short in its chunk list
+    assert read_exif_focal(cut, 400, 300) == (None, None)
+
+
 def test_no_usable_tags_mean_no_prior(tmp_path):
     plain = tmp_path / "plain.png"
     Image.new("RGB", (200, 100)).save(plain)

@@ -118,6 +118,15 @@ def _read_tags(path):
     """(IFD0 tags, Exif IFD tags) of a file, or (None, None) when it has no EXIF."""
     from PIL import Image
 
+    with open(path, "rb") as file:
+        png = file.read(len(_PNG_SIGNATURE)) == _PNG_SIGNATURE
+        block = _png_exif_chunk(file) if png else None
+    if png:  # Pillow decodes a PNG's pixels to look for EXIF after them; its chunk list says where it is
+        if block is None:
+            return None, None
+        tags = Image.Exif()
+        tags.load(block)
+        return (dict(tags), dict(tags.get_ifd(_EXIF_IFD))) if tags else (None, None)
     # Only the header is read, never the pixels, so Pillow's guard against decompression bombs (a warning
     # from 89 MP, an error from 179 MP: a 200 MP phone photo) does not apply here.
     limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
@@ -129,6 +138,24 @@ def _read_tags(path):
             return dict(tags), dict(tags.get_ifd(_EXIF_IFD))
     finally:
         Image.MAX_IMAGE_PIXELS = limit
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _png_exif_chunk(file) -> bytes | None:
+    """The data of a PNG's ``eXIf`` chunk (TIFF-format EXIF), or None: the chunks' headers are read and
+    their data skipped, up to ``IEND`` (``file`` positioned after the signature)."""
+    while header := file.read(8):
+        if len(header) < 8:
+            return None
+        length, kind = int.from_bytes(header[:4], "big"), header[4:]
+        if kind == b"eXIf":
+            return file.read(length)
+        if kind == b"IEND":
+            return None
+        file.seek(length + 4, 1)  # the data and its CRC
+    return None
 
 
 def _number(value) -> float | None:
