@@ -7,8 +7,10 @@ returns each view's fields with the pixel coordinates of every field cell in the
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import platform
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +27,7 @@ from stereogeo_cli.geometry import (
 VIEW_OUTPUTS = ("up", "latitude", "up_confidence", "latitude_confidence")
 DEPTH_STRIDE = 8  # the depth head's cells (stereogeo_cli.network.model.DepthHead), in network-input pixels
 REQUIRED_METADATA = ("input_short_side", "input_multiple", "output_stride")
+CACHE_ENV = "STEREOGEO_CACHE_DIR"  # where optimised graphs are kept; set empty to keep none
 
 
 @dataclass(frozen=True)
@@ -96,6 +99,38 @@ def model_version(path: str | os.PathLike) -> str:
     return f"{name} (sha256 {network.model_sha256[:12]})"
 
 
+def cache_folder() -> Path | None:
+    """The folder of optimised graphs: ``$STEREOGEO_CACHE_DIR`` (empty: none), else ``stereogeo`` in
+    ``$XDG_CACHE_HOME`` or ``~/.cache``."""
+    chosen = os.environ.get(CACHE_ENV)
+    if chosen is not None:
+        return Path(chosen) if chosen.strip() else None
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "stereogeo"
+
+
+def optimised_graph_path(model_sha256: str, runtime_version: str) -> Path | None:
+    """Where the optimised graph of a model is kept (None: no cache folder). An optimised graph holds
+    memory layouts chosen for one CPU by one ONNX Runtime version, so its name carries the model's
+    SHA-256, the runtime's version and the CPU's instruction sets."""
+    folder = cache_folder()
+    if folder is None:
+        return None
+    key = hashlib.sha256(f"{model_sha256}|{runtime_version}|{_cpu_signature()}".encode()).hexdigest()
+    return folder / f"graph-{key[:24]}.onnx"
+
+
+def _cpu_signature() -> str:
+    """The CPU's architecture and instruction-set flags (Linux's /proc/cpuinfo; elsewhere the processor
+    name the platform gives)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as info:
+            flags = next((line for line in info if line.startswith(("flags", "Features"))), "")
+    except OSError:
+        flags = ""
+    return f"{platform.machine()}|{flags.strip() or platform.processor()}"
+
+
 def file_sha256(path: str | os.PathLike) -> str:
     """SHA-256 of a file (hex), read in 1 MiB blocks."""
     digest = hashlib.sha256()
@@ -121,12 +156,10 @@ class FieldNetwork:
             raise StereoGeoError(f"model file not found: {self.path}")
         if not self.path.is_file():
             raise StereoGeoError(f"model path {self.path} is not a file")
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = int(threads)
-        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        options.log_severity_level = 3  # errors only: ONNX Runtime's warnings are not for our users
+        self._sha256: str | None = None
+        self.graph_file = self.path  # the file the session's graph was read from (the model, or the cache's)
         try:
-            self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
+            self.session = self._open_session(ort, int(threads))
         except Exception as exc:  # onnxruntime raises its own exception types for unreadable models
             reason = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
             raise StereoGeoError(f"model file {self.path} is not a valid ONNX model: {reason}") from None
@@ -145,7 +178,47 @@ class FieldNetwork:
         except ValueError:
             raise StereoGeoError(f"model file {self.path} has invalid size metadata") from None
         self.output_names = [o.name for o in self.session.get_outputs()]
-        self._sha256: str | None = None
+
+    def _open_session(self, ort, threads: int):
+        """The model's session. ONNX Runtime's graph optimisation (fusions, this CPU's memory layouts) takes
+        more of a cold start than anything but the first calibration; the optimised graph is kept in the
+        cache folder (:func:`optimised_graph_path`) and a later process loads it with no optimisation to
+        redo: the same graph, the same outputs bit for bit. Without a usable cache folder the model is
+        optimised in every process, as it is the first time."""
+
+        def options(level, save_to: Path | None = None):
+            chosen = ort.SessionOptions()
+            chosen.intra_op_num_threads = threads
+            chosen.graph_optimization_level = level
+            chosen.log_severity_level = 3  # errors only: ONNX Runtime's warnings are not for our users
+            if save_to is not None:
+                chosen.optimized_model_filepath = str(save_to)
+            return chosen
+
+        cpu = ["CPUExecutionProvider"]
+        optimised = optimised_graph_path(self.model_sha256, ort.__version__)
+        if optimised is not None and optimised.is_file():
+            try:
+                session = ort.InferenceSession(
+                    str(optimised), options(ort.GraphOptimizationLevel.ORT_DISABLE_ALL), providers=cpu
+                )
+                self.graph_file = optimised
+                return session
+            except Exception:  # a damaged or foreign file: optimised again below, and replaced
+                pass
+        full = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        if optimised is None:
+            return ort.InferenceSession(str(self.path), options(full), providers=cpu)
+        partial = optimised.with_name(f".{optimised.name}.{os.getpid()}.partial")
+        try:
+            optimised.parent.mkdir(parents=True, exist_ok=True)
+            session = ort.InferenceSession(str(self.path), options(full, partial), providers=cpu)
+            os.replace(partial, optimised)  # whole or not at all, also with processes racing to write it
+            return session
+        except Exception:  # a cache folder this process may not write (or a model that fails: again below)
+            with contextlib.suppress(OSError):
+                partial.unlink(missing_ok=True)
+            return ort.InferenceSession(str(self.path), options(full), providers=cpu)
 
     @property
     def model_sha256(self) -> str:
