@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -164,6 +165,12 @@ class CalibrationResult:
             self, calibration=calibration, left=self.right, right=self.left, pose=mirrored_pose,
             matches=matches, focal_sources=self.focal_sources[::-1],
         )  # fmt: skip
+
+
+def _flat_futures(work) -> list:
+    """The futures of ``Calibrator._start_image_work``'s result (a tuple of them and None)."""
+    features, *others = work
+    return [*features, *(future for future in others if future is not None)]
 
 
 def _timed(function, *args):
@@ -350,6 +357,7 @@ class Calibrator:
         # threads while ONNX Runtime runs (all three release the GIL)
         self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-pool")
         self._view_samples: dict[int, tuple[ViewFields, FieldSamples]] = {}
+        self._ahead: tuple | None = None  # (left, right, image work) of the pair to be calibrated next
 
     def reported_sigma(
         self, fit: CameraFit, focal_from_fields: bool = True, spread_rel: float = 0.0
@@ -605,6 +613,7 @@ class Calibrator:
         focal_left: float | None = None,
         focal_right: float | None = None,
         exif: tuple[tuple[FocalPrior | None, str | None], tuple[FocalPrior | None, str | None]] | None = None,
+        upcoming: Callable[[], tuple[np.ndarray, np.ndarray] | None] | None = None,
     ) -> CalibrationResult:
         """Calibrate one pair of RGB images [H x W x 3] uint8 (the two sizes may differ).
 
@@ -616,6 +625,10 @@ class Calibrator:
             exif: per image what :func:`stereogeo_cli.io.exif.read_exif_focal` found, (focal, reason it
                 is not usable): a focal length is a prior, combined with the fields' (a known focal
                 length wins); a reason becomes a warning.
+            upcoming: for a run of pairs (``batch-calibrate``), the next pair's images if they are loaded
+                (else None): once this pair's work is all on the pool, the next pair's image work starts
+                there, on the core this pair's last stages leave idle, and the next :meth:`calibrate` of
+                those same arrays takes it up. The results are the same as without it.
         Raises:
             CalibrationFailed: the images are blank or the fields too ambiguous to trust.
 
@@ -625,9 +638,12 @@ class Calibrator:
         swapped pair is worse, so a pair and its swap give the same rig.
         """
         exif = exif or ((None, None), (None, None))
+        if self._ahead is not None and not (self._ahead[0] is left and self._ahead[1] is right):
+            self._drop_ahead()  # started for a pair that is not the one calibrated now
         result = self._calibrate_in_order(
-            left, right, baseline_m=baseline_m, focal_left=focal_left, focal_right=focal_right, exif=exif
-        )
+            left, right, baseline_m=baseline_m, focal_left=focal_left, focal_right=focal_right, exif=exif,
+            upcoming=upcoming,
+        )  # fmt: skip
         if result.calibration.T[0] <= 0:
             return result
         swapped = self._calibrate_in_order(
@@ -648,13 +664,15 @@ class Calibrator:
         focal_left: float | None,
         focal_right: float | None,
         exif: tuple[tuple[FocalPrior | None, str | None], tuple[FocalPrior | None, str | None]],
+        upcoming=None,
     ) -> CalibrationResult:
         """:meth:`calibrate` with the images in the order given: the stages below, in order."""
         start = time.perf_counter()
         check_pair(left, right)
-        features, finding_lines, finding_edges = self._start_image_work(left, right)
+        features, finding_lines, finding_edges = self._image_work(left, right)
         work = self._fit_cameras(self._read_fields(left, right), (focal_left, focal_right), exif)
         reading_edges = self._start_edge_focals(finding_edges, work)
+        self._start_upcoming(upcoming)
         work.matches, work.timing["matching"] = self._matches(features)
         self._find_lines(finding_lines, work)
         self._fuse_pose(work)
@@ -664,6 +682,30 @@ class Calibrator:
         baseline = self._baseline(work, baseline_m)
         work.timing["total"] = (time.perf_counter() - start) * 1e3
         return self._assemble(work, baseline)
+
+    def _image_work(self, left: np.ndarray, right: np.ndarray):
+        """The pair's image work (``_start_image_work``): started by the previous :meth:`calibrate` where
+        it was this pair's ``upcoming`` (the very same arrays), else started now."""
+        ahead = self._ahead
+        if ahead is not None and ahead[0] is left and ahead[1] is right:
+            self._ahead = None
+            return ahead[2]
+        return self._start_image_work(left, right)
+
+    def _start_upcoming(self, upcoming) -> None:
+        """The next pair's image work started on the pool, behind this pair's (``calibrate``'s
+        ``upcoming``); work started for a pair that was then not calibrated is dropped."""
+        images = upcoming() if upcoming is not None else None
+        if images is None:
+            return
+        self._drop_ahead()
+        self._ahead = (images[0], images[1], self._start_image_work(*images))
+
+    def _drop_ahead(self) -> None:
+        if self._ahead is not None:
+            for future in _flat_futures(self._ahead[2]):
+                future.cancel()  # those not begun; those running finish unread
+            self._ahead = None
 
     def _start_image_work(self, left: np.ndarray, right: np.ndarray):
         """The two images' features, their line segments and the lens those show, and the edges for the

@@ -52,3 +52,31 @@ def test_swapped_pair_gives_the_mirrored_rig(example_pair, onnx_model):
     # the swapped files put the right camera to the left of the left one: the user is warned
     assert swapped.T[0] > 0 and any("swapped" in note for note in swapped.notes.split("; "))
     assert not any("swapped" in note for note in direct.notes.split("; "))
+
+
+def test_the_next_pairs_image_work_started_ahead_gives_the_same_calibration(example_pair, onnx_model):
+    """``calibrate(..., upcoming=...)`` (how ``batch-calibrate`` runs its pairs) starts the next pair's
+    features and line segments on the pool: that pair's calibration is the same bit for bit as without,
+    and work started for a pair that is then not calibrated is dropped."""
+    first = [stereogeo_cli.load_image(p) for p in example_pair]
+    second = [
+        np.ascontiguousarray(image[:, ::-1][:, :, ::-1]) for image in first[::-1]
+    ]  # mirrored: another pair
+    alone = stereogeo_cli.Calibrator(onnx_model, threads=1).calibrate(*second).report()
+
+    calibrator = stereogeo_cli.Calibrator(onnx_model, threads=1)
+    started = []
+    start = calibrator._start_image_work
+    calibrator._start_image_work = lambda *images: started.append(images) or start(*images)
+    calibrator.calibrate(*first, upcoming=lambda: tuple(second))
+    assert len(started) == 2 and started[1][0] is second[0]
+    ahead = calibrator.calibrate(*second).report()
+    assert len(started) == 2 and calibrator._ahead is None  # taken up, not started again
+    for report in (alone, ahead):
+        report.pop("timing_ms", None)
+    assert ahead == alone
+
+    calibrator.calibrate(*first, upcoming=lambda: tuple(second))
+    assert calibrator._ahead is not None
+    calibrator.calibrate(*first)  # not the pair started ahead: that work is dropped, this pair's started
+    assert calibrator._ahead is None and len(started) == 5

@@ -12,7 +12,7 @@ import os
 import sys
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -139,18 +139,31 @@ def _evidence(result) -> RigEvidence:
     )
 
 
-def calibrate_pair(calibrator, entry: PairEntry, job: PairJob) -> PairOutcome:
-    """Load, calibrate and (if ``job.out_dir``) write one pair; any failure becomes a "failed" outcome."""
-    from stereogeo_cli.io import load_pair, write_calibration
+def load_entry(entry: PairEntry, job: PairJob) -> tuple[np.ndarray, np.ndarray, tuple | None]:
+    """A pair's images (checked as a pair) and, if ``job.exif``, what their EXIF says of the focal length."""
+    from stereogeo_cli.io import load_pair
     from stereogeo_cli.io.exif import exif_focals
+
+    left, right = load_pair(entry.left, entry.right)
+    return left, right, exif_focals((entry.left, entry.right), (left, right)) if job.exif else None
+
+
+def calibrate_pair(
+    calibrator, entry: PairEntry, job: PairJob, loading: Future | None = None, upcoming=None
+) -> PairOutcome:
+    """Load, calibrate and (if ``job.out_dir``) write one pair; any failure becomes a "failed" outcome.
+
+    ``loading``: the pair's :func:`load_entry`, already under way; ``upcoming``: the next pair's images
+    when they are loaded (:meth:`stereogeo_cli.pipeline.Calibrator.calibrate`)."""
+    from stereogeo_cli.io import write_calibration
 
     start = time.perf_counter()
     outcome = PairOutcome(entry.name, entry.left, entry.right, "failed")
     try:
-        left, right = load_pair(entry.left, entry.right)
+        left, right, exif = loading.result() if loading is not None else load_entry(entry, job)
         result = calibrator.calibrate(
             left, right, baseline_m=job.baseline_m, focal_left=job.focal_left, focal_right=job.focal_right,
-            exif=exif_focals((entry.left, entry.right), (left, right)) if job.exif else None,
+            exif=exif, upcoming=upcoming,
         )  # fmt: skip
         if job.out_dir is not None:
             write_calibration(job.out_dir / entry.name, result.calibration, job.formats)
@@ -235,13 +248,33 @@ class _Progress:
             self.bar.advance(self.task)
 
 
+def _images_when_loaded(loading: Future | None):
+    """For ``Calibrator.calibrate``'s ``upcoming``: the pair's images if ``loading`` has loaded them by
+    then, else None (still loading, or failed: the pair's own turn reports why)."""
+
+    def images():
+        if loading is None or not loading.done() or loading.exception() is not None:
+            return None
+        left, right, _ = loading.result()
+        return left, right
+
+    return images
+
+
 def _run_pass(entries: list[PairEntry], job: PairJob, workers: int, calibrator, progress: _Progress):
     """Outcomes of ``entries`` in their order, whatever the order in which they finish."""
     outcomes: list[PairOutcome | None] = [None] * len(entries)
     if workers <= 1 or len(entries) <= 1:
-        for i, entry in enumerate(entries):
-            outcomes[i] = calibrate_pair(calibrator(), entry, job)
-            progress.finished(outcomes[i])
+        # one after the other, each pair loaded on a thread while the one before it is calibrated, and its
+        # image work started on the pool while that one's last stages run
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-load") as loader:
+            loading = loader.submit(load_entry, entries[0], job)
+            for i, entry in enumerate(entries):
+                current, loading = loading, None
+                if i + 1 < len(entries):
+                    loading = loader.submit(load_entry, entries[i + 1], job)
+                outcomes[i] = calibrate_pair(calibrator(), entry, job, current, _images_when_loaded(loading))
+                progress.finished(outcomes[i])
         return outcomes
     total = job.threads if job.threads > 0 else usable_cores()
     per_worker = max(1, total // workers)
