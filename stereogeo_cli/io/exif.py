@@ -116,14 +116,14 @@ def read_exif_focal(path: str | os.PathLike, width: int, height: int) -> tuple[F
 
 def _read_tags(path):
     """(IFD0 tags, Exif IFD tags) of a file, or (None, None) when it has no EXIF."""
-    from PIL import Image
-
     with open(path, "rb") as file:
         png = file.read(len(_PNG_SIGNATURE)) == _PNG_SIGNATURE
         block = _png_exif_chunk(file) if png else None
+    if png and block is None:  # most PNGs: no EXIF, and no need to load Pillow to say so
+        return None, None
+    from PIL import Image
+
     if png:  # Pillow decodes a PNG's pixels to look for EXIF after them; its chunk list says where it is
-        if block is None:
-            return None, None
         tags = Image.Exif()
         tags.load(block)
         return (dict(tags), dict(tags.get_ifd(_EXIF_IFD))) if tags else (None, None)
