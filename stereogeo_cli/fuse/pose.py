@@ -725,8 +725,9 @@ class _Priors:
 def _scaled(K: np.ndarray, log_scale: float) -> np.ndarray:
     """K with its focal lengths multiplied by exp(log_scale) (the principal point stays)."""
     K = K.copy()
-    K[0, 0] *= np.exp(log_scale)
-    K[1, 1] *= np.exp(log_scale)
+    with np.errstate(over="ignore"):  # a trial step far out: an infinite cost, and the step is not taken
+        K[0, 0] *= np.exp(log_scale)
+        K[1, 1] *= np.exp(log_scale)
     return K
 
 
