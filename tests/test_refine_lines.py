@@ -108,12 +108,30 @@ def test_sigma_scale_scales_the_gravity_covariance():
     segments = true_vertical_segments(rng, width, height, f, g)
     one, scaled = (
         gravity_with_lines(up, lat, conf, conf, segments, image_size=(width, height), pixel_xy=None,
-                           conf={"sigma_scale": scale})
+                           conf={"sigma_scale": scale, "segment_sigma_deg": 0.0})
         for scale in (1.0, (2.0, 3.0))
     )  # fmt: skip
     # (roll, pitch) factors; the covariance is of (pitch, roll·cos(pitch))
     np.testing.assert_allclose(scaled.covariance, one.covariance * np.outer([3.0, 2.0], [3.0, 2.0]))
     np.testing.assert_array_equal(scaled.gravity_up, one.gravity_up)
+
+
+def test_few_segments_cannot_pin_the_gravity_however_long():
+    """Each segment taken as vertical may stand off the vertical by segment_sigma_deg on its own: n of them
+    leave at least that over √n on the gravity's 1 sigma, in both directions; the fit itself is the same."""
+    rng = np.random.default_rng(6)
+    width, height, f, g, *_ = random_camera(rng, (320, 240))
+    up, lat, conf = noisy_fields(rng, width, height, f, g)
+    segments = true_vertical_segments(rng, width, height, f, g)
+    bare, spread = (
+        gravity_with_lines(up, lat, conf, conf, segments, image_size=(width, height), pixel_xy=None,
+                           conf={"segment_sigma_deg": sigma})
+        for sigma in (0.0, 3.0)
+    )  # fmt: skip
+    floor = np.radians(3.0) ** 2 / spread.segments
+    np.testing.assert_allclose(spread.covariance, bare.covariance + floor * np.eye(2), rtol=1e-12)
+    assert np.all(np.diag(spread.covariance) >= floor) and np.all(np.diag(bare.covariance) < floor)
+    np.testing.assert_array_equal(spread.gravity_up, bare.gravity_up)
 
 
 def test_without_vertical_segments_there_is_no_line_gravity():

@@ -40,6 +40,11 @@ default_conf = {
     # sigma_inflation (the fields' own) overstates: the factors that put 68 % of the validation set's errors
     # within 1 sigma after calibrate shares gravity between the cameras (docs/refine.md, "Uncertainty")
     "sigma_scale": (0.12, 0.33),
+    # degrees: how far one segment taken as vertical may stand from the true vertical (a slanted edge, the
+    # detector's angle), independently of the others; added in quadrature to the gravity's 1 sigma divided
+    # by √(segments used), so that a few segments cannot pin the gravity however long they are
+    # (docs/refine.md, "Uncertainty")
+    "segment_sigma_deg": 3.0,
 }
 
 
@@ -206,5 +211,6 @@ def gravity_with_lines(
     )  # fmt: skip
     roll_scale, pitch_scale = np.broadcast_to(np.asarray(conf["sigma_scale"], dtype=float), (2,))
     scale = np.array([pitch_scale, roll_scale])  # in the order of the refiner's parameters
-    covariance = joint.covariance[:2, :2] * np.outer(scale, scale)
+    spread = np.radians(conf["segment_sigma_deg"]) ** 2 / len(found)
+    covariance = joint.covariance[:2, :2] * np.outer(scale, scale) + spread * np.eye(2)
     return LineGravity(joint.gravity_up, covariance, len(found))
