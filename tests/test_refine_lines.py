@@ -101,16 +101,23 @@ def test_segments_correct_a_biased_up_field():
         assert np.degrees(gravity_angle(known.gravity_up, g)) < 0.5
 
 
-def test_sigma_scale_scales_the_gravity_covariance():
+def _line_gravity_with(*confs: dict):
+    """The line gravity of one camera with true vertical segments, once per ``conf`` of gravity_with_lines."""
     rng = np.random.default_rng(6)
     width, height, f, g, *_ = random_camera(rng, (320, 240))
     up, lat, conf = noisy_fields(rng, width, height, f, g)
     segments = true_vertical_segments(rng, width, height, f, g)
-    one, scaled = (
-        gravity_with_lines(up, lat, conf, conf, segments, image_size=(width, height), pixel_xy=None,
-                           conf={"sigma_scale": scale, "segment_sigma_deg": 0.0})
-        for scale in (1.0, (2.0, 3.0))
-    )  # fmt: skip
+    size = (width, height)
+    return [
+        gravity_with_lines(up, lat, conf, conf, segments, image_size=size, pixel_xy=None, conf=c)
+        for c in confs
+    ]
+
+
+def test_sigma_scale_scales_the_gravity_covariance():
+    one, scaled = _line_gravity_with(
+        {"sigma_scale": 1.0, "segment_sigma_deg": 0.0}, {"sigma_scale": (2.0, 3.0), "segment_sigma_deg": 0.0}
+    )
     # (roll, pitch) factors; the covariance is of (pitch, roll·cos(pitch))
     np.testing.assert_allclose(scaled.covariance, one.covariance * np.outer([3.0, 2.0], [3.0, 2.0]))
     np.testing.assert_array_equal(scaled.gravity_up, one.gravity_up)
@@ -119,15 +126,7 @@ def test_sigma_scale_scales_the_gravity_covariance():
 def test_few_segments_cannot_pin_the_gravity_however_long():
     """Each segment taken as vertical may stand off the vertical by segment_sigma_deg on its own: n of them
     leave at least that over √n on the gravity's 1 sigma, in both directions; the fit itself is the same."""
-    rng = np.random.default_rng(6)
-    width, height, f, g, *_ = random_camera(rng, (320, 240))
-    up, lat, conf = noisy_fields(rng, width, height, f, g)
-    segments = true_vertical_segments(rng, width, height, f, g)
-    bare, spread = (
-        gravity_with_lines(up, lat, conf, conf, segments, image_size=(width, height), pixel_xy=None,
-                           conf={"segment_sigma_deg": sigma})
-        for sigma in (0.0, 3.0)
-    )  # fmt: skip
+    bare, spread = _line_gravity_with({"segment_sigma_deg": 0.0}, {"segment_sigma_deg": 3.0})
     floor = np.radians(3.0) ** 2 / spread.segments
     np.testing.assert_allclose(spread.covariance, bare.covariance + floor * np.eye(2), rtol=1e-12)
     assert np.all(np.diag(spread.covariance) >= floor) and np.all(np.diag(bare.covariance) < floor)
