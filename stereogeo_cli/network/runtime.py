@@ -109,15 +109,12 @@ def cache_folder() -> Path | None:
     return Path(base) / "stereogeo"
 
 
-def optimised_graph_path(model_sha256: str, runtime_version: str) -> Path | None:
-    """Where the optimised graph of a model is kept (None: no cache folder). An optimised graph holds
-    memory layouts chosen for one CPU by one ONNX Runtime version, so its name carries the model's
-    SHA-256, the runtime's version and the CPU's instruction sets."""
-    folder = cache_folder()
-    if folder is None:
-        return None
+def optimised_graph_name(model_sha256: str, runtime_version: str) -> str:
+    """The cache file name of a model's optimised graph. An optimised graph holds memory layouts chosen for
+    one CPU by one ONNX Runtime version, so the name carries the model's SHA-256, the runtime's version and
+    the CPU's instruction sets."""
     key = hashlib.sha256(f"{model_sha256}|{runtime_version}|{_cpu_signature()}".encode()).hexdigest()
-    return folder / f"graph-{key[:24]}.onnx"
+    return f"graph-{key[:24]}.onnx"
 
 
 def _cpu_signature() -> str:
@@ -182,9 +179,9 @@ class FieldNetwork:
     def _open_session(self, ort, threads: int):
         """The model's session. ONNX Runtime's graph optimisation (fusions, this CPU's memory layouts) takes
         more of a cold start than anything but the first calibration; the optimised graph is kept in the
-        cache folder (:func:`optimised_graph_path`) and a later process loads it with no optimisation to
-        redo: the same graph, the same outputs bit for bit. Without a usable cache folder the model is
-        optimised in every process, as it is the first time."""
+        cache folder (:func:`cache_folder`, :func:`optimised_graph_name`) and a later process loads it
+        with no optimisation to redo: the same graph, the same outputs bit for bit. Without a usable cache
+        folder the model is optimised in every process, as it is the first time."""
 
         def options(level, save_to: Path | None = None):
             chosen = ort.SessionOptions()
@@ -196,7 +193,10 @@ class FieldNetwork:
             return chosen
 
         cpu = ["CPUExecutionProvider"]
-        optimised = optimised_graph_path(self.model_sha256, ort.__version__)
+        folder = cache_folder()  # (no folder: the model file is not even hashed here)
+        optimised = (
+            None if folder is None else folder / optimised_graph_name(self.model_sha256, ort.__version__)
+        )
         if optimised is not None and optimised.is_file():
             try:
                 session = ort.InferenceSession(
