@@ -64,7 +64,8 @@ def calibrate(
         conf = calibrator_conf(pinhole, lines)
         if focal_sigma is not None:
             conf["known_focal_sigma"] = focal_sigma
-        calibrator = Calibrator(model, threads=threads, conf=conf)
+        # the pair's image work starts while the network's session opens
+        calibrator = Calibrator(model, threads=threads, conf=conf, first_pair=(images[0], images[1]))
     elif focal_sigma is not None:
         raise StereoGeoError("give focal_sigma in the calibrator's conf (known_focal_sigma) when reusing one")
     found = None

@@ -316,12 +316,38 @@ class Calibrator:
         threads: ONNX Runtime intra-op threads (0: one per core this process may use but one, which the
             feature matching takes while the network runs: :func:`network_threads`).
         conf: overrides of :data:`default_conf`.
+        first_pair: the images (left, right) the first :meth:`calibrate` will be given, where they are
+            loaded already: their image work (features, line segments, edges; no network needed) starts
+            on the pool while the network's session opens, on the core that opening leaves idle, and that
+            :meth:`calibrate` of those same arrays takes it up. The results are the same as without it.
     """
 
-    def __init__(self, model_path: str | Path | None = None, threads: int = 0, conf: dict | None = None):
+    def __init__(
+        self,
+        model_path: str | Path | None = None,
+        threads: int = 0,
+        conf: dict | None = None,
+        *,
+        first_pair: tuple[np.ndarray, np.ndarray] | None = None,
+    ):
         self.conf = {**default_conf, **(conf or {})}
+        self.conf["lines"] = {**lines_conf, **self.conf["lines"]}
+        self.conf["plumb"] = {**plumb_conf, **self.conf["plumb"]}
+        self.conf["manhattan"] = {**manhattan_conf, **self.conf["manhattan"]}
+        # the features and the straight edges' detection need no network output: they run on the pool's
+        # threads while ONNX Runtime runs (all three release the GIL)
+        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-pool")
+        self._view_samples: dict[int, tuple[ViewFields, FieldSamples]] = {}
+        self._ahead: tuple | None = None  # (left, right, image work) of the pair to be calibrated next
+        if first_pair is not None:
+            check_pair(*first_pair)
+            self._ahead = (*first_pair, self._start_image_work(*first_pair))
         self.model_path = Path(model_path) if model_path is not None else default_model_path()
-        self.network = FieldNetwork(self.model_path, threads=threads or network_threads())
+        try:
+            self.network = FieldNetwork(self.model_path, threads=threads or network_threads())
+        except BaseException:
+            self._drop_ahead()
+            raise
         # The refiner's sigmas treat field cells as independent; a network's errors are correlated, and the
         # model records how much to widen them (measured on validation data when it was exported).
         # It also records how much wider the reported sigmas must be on real photographs, where the network
@@ -341,9 +367,6 @@ class Calibrator:
             "prior_rotation_sigma_deg": self.network.metadata.get("pose_sigma_rotation_deg"),
             "prior_direction_sigma_deg": self.network.metadata.get("pose_sigma_direction_deg"),
         }
-        self.conf["lines"] = {**lines_conf, **self.conf["lines"]}
-        self.conf["plumb"] = {**plumb_conf, **self.conf["plumb"]}
-        self.conf["manhattan"] = {**manhattan_conf, **self.conf["manhattan"]}
         self.conf["fuse"] = {
             **{k: float(v) for k, v in measured.items() if v is not None},
             **self.conf["fuse"],
@@ -353,11 +376,6 @@ class Calibrator:
         depth_sigma = self.network.metadata.get("depth_sigma_scale_rel")
         self._depth_scale_sigma = float(depth_sigma) if depth_sigma is not None else None
         self.conf["scale"] = {**scale_conf, **self.conf["scale"]}
-        # the features and the straight edges' detection need no network output: they run on the pool's
-        # threads while ONNX Runtime runs (all three release the GIL)
-        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-pool")
-        self._view_samples: dict[int, tuple[ViewFields, FieldSamples]] = {}
-        self._ahead: tuple | None = None  # (left, right, image work) of the pair to be calibrated next
 
     def reported_sigma(
         self, fit: CameraFit, focal_from_fields: bool = True, spread_rel: float = 0.0
@@ -720,7 +738,8 @@ class Calibrator:
         )
         finding_lines = None
         if conf["lines"]["enabled"]:
-            finding_lines = self._pool.submit(_timed, self._lines_and_lens, left, right)
+            fits_lens = conf["plumb"]["enabled"] and conf["fuse"].get("distortion", fuse_conf["distortion"])
+            finding_lines = self._pool.submit(_timed, self._lines_and_lens, left, right, fits_lens)
         finding_edges = None
         if conf["manhattan"]["enabled"]:
             short = conf["manhattan"]["max_short_side"]
@@ -784,14 +803,14 @@ class Calibrator:
         needed = [work.held[side] is None and work.priors[side] is None for side in (0, 1)]
         return self._pool.submit(self._edge_focals, finding_edges, tuple(work.fits), needed)
 
-    def _lines_and_lens(self, left: np.ndarray, right: np.ndarray) -> tuple[list, list]:
-        """Each image's line segments, and the lens their straight edges show (None where none is fitted or
-        they show none), on the pool's thread."""
+    def _lines_and_lens(self, left: np.ndarray, right: np.ndarray, fits_lens: bool) -> tuple[list, list]:
+        """Each image's line segments, and the lens their straight edges show where ``fits_lens`` (the
+        fusion fits one and the edges' lens is on; None where none is fitted or they show none), on the
+        pool's thread."""
         short = self.conf["lines"]["max_short_side"]
         segments = [detect_segments(image, short) for image in (left, right)]
         lenses = [None, None]
-        fits_lens = self.conf["fuse"].get("distortion", fuse_conf["distortion"])
-        if self.conf["plumb"]["enabled"] and fits_lens:
+        if fits_lens:
             lenses = [
                 self._edge_lens(found, image) for found, image in zip(segments, (left, right), strict=True)
             ]

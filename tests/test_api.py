@@ -80,3 +80,23 @@ def test_the_next_pairs_image_work_started_ahead_gives_the_same_calibration(exam
     assert calibrator._ahead is not None
     calibrator.calibrate(*first)  # not the pair started ahead: that work is dropped, this pair's started
     assert calibrator._ahead is None and len(started) == 5
+
+
+def test_the_first_pairs_image_work_started_with_the_session_gives_the_same_calibration(
+    example_pair, onnx_model
+):
+    """``Calibrator(first_pair=...)`` (how ``calibrate`` and the CLI start) starts the pair's features and
+    line segments on the pool before the network's session opens: the same calibration bit for bit, and
+    the work is taken up by the first ``calibrate`` of those arrays, not started again; a bad pair fails
+    as ``calibrate`` would fail on it."""
+    images = [stereogeo_cli.load_image(p) for p in example_pair]
+    alone = stereogeo_cli.Calibrator(onnx_model, threads=1).calibrate(*images).report()
+    early = stereogeo_cli.Calibrator(onnx_model, threads=1, first_pair=(images[0], images[1]))
+    assert early._ahead is not None and early._ahead[0] is images[0]
+    report = early.calibrate(*images).report()
+    assert early._ahead is None
+    for each in (alone, report):
+        each.pop("timing_ms", None)
+    assert report == alone
+    with pytest.raises(stereogeo_cli.StereoGeoError, match="same image"):
+        stereogeo_cli.Calibrator(onnx_model, threads=1, first_pair=(images[0], images[0]))
