@@ -276,7 +276,8 @@ def _print_summary(result, console) -> None:
     from stereogeo_cli.geometry import axis_angle_from_rotation, rotation_angle
 
     rotvec = np.degrees(axis_angle_from_rotation(result.calibration.R))
-    sigma_r = f" ± {pose.sigma_rotation_deg:.2f}°" if np.isfinite(pose.sigma_rotation_deg) else ""
+    rotation_sigma = report["pose"].get("sigma_rotation_deg")
+    sigma_r = f" ± {rotation_sigma:.2f}°" if rotation_sigma is not None else ""
     console.print(
         f"R: {np.degrees(rotation_angle(result.calibration.R)):.2f}°{sigma_r} (rotation vector "
         f"{rotvec[0]:+.2f}°, {rotvec[1]:+.2f}°, {rotvec[2]:+.2f}°), from {pose.source.replace('_', ' ')}"

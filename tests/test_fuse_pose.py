@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -551,3 +553,37 @@ def test_a_fusion_again_with_other_focal_lengths_from_the_first_ones_choices_is_
     assert np.sum(np.abs(again - full).max(axis=1) < 0.02) >= 8, errors
     assert np.median(again[:, 0]) < 1.1 * np.median(full[:, 0]) + 0.005, errors
     assert np.median(again[:, 1]) < 1.1 * np.median(full[:, 1]) + 0.05, errors
+
+
+def test_the_reported_rotation_sigma_takes_in_the_focal_lengths_in_proportion_to_the_turn():
+    """A rotation is read through the focal lengths: on a rig turned 50°, both focal lengths 20 % long move R
+    by about 0.2 · 50° (held there, the matches cannot tell), and the reported sigma of R takes in the two
+    cameras' relative focal sigma times the turn of the optical axis. A turn about the optical axis does not
+    depend on f, nor does anything where the focal lengths were given (no sigma)."""
+    from stereogeo_cli.fuse.assemble import CameraEstimate, rotation_sigma_deg
+
+    rng = np.random.default_rng(83)
+    K = intrinsic_matrix(600, 640, 480)
+    matches, R, _ = _turned_rig_matches(rng, K, 50.0)
+    exact = fuse_relative_pose(matches, K, K)
+    longer = fuse_relative_pose(matches, *(intrinsic_matrix(600 * np.exp(0.2), 640, 480),) * 2)
+    moved = np.degrees(rotation_error(longer.R, exact.R))
+    assert 0.7 * 0.2 * 50 < moved < 1.3 * 0.2 * 50, moved
+    assert exact.sigma_rotation_deg < 0.2  # the fusion's own: the matches, with the focal lengths held
+
+    def cameras(sigma_rel):
+        return tuple(CameraEstimate(600.0, 640, 480, None, {"focal_px": 600.0 * sigma_rel}) for _ in (0, 1))
+
+    reported = rotation_sigma_deg(exact, cameras(0.2))
+    assert reported == pytest.approx(np.hypot(exact.sigma_rotation_deg, 0.2 * 50.0), rel=0.02)
+    assert rotation_sigma_deg(exact, cameras(0.0)) == pytest.approx(exact.sigma_rotation_deg)
+    about_the_axis = replace(exact, R=rotation_from_axis_angle([0.0, 0.0, np.radians(30.0)]))
+    assert rotation_sigma_deg(about_the_axis, cameras(0.2)) == pytest.approx(exact.sigma_rotation_deg)
+    # a fusion told the focal lengths' sigma has it in its own covariance already: nothing is counted twice
+    R_toed, T_toed = rotation_from_axis_angle([0.0, np.radians(8.0), 0.0]), np.array([-0.3, 0.0, 0.02])
+    toed = fuse_relative_pose(
+        _matches(rng, K, K, R_toed, T_toed, outliers=0.0), K, K, focal_sigma_rel=(0.1, 0.1)
+    )
+    assert toed.sigma_focal_considered == pytest.approx(0.1)
+    assert rotation_sigma_deg(toed, cameras(0.1)) == pytest.approx(toed.sigma_rotation_deg)
+    assert rotation_sigma_deg(toed, cameras(0.3)) > toed.sigma_rotation_deg + 0.5 * 8.0 * 0.2

@@ -15,7 +15,13 @@ from typing import Any
 import numpy as np
 
 from stereogeo_cli.fuse.pose import RelativePose
-from stereogeo_cli.geometry import corner_radius, intrinsic_matrix, opencv_from_division, rotation_angle
+from stereogeo_cli.geometry import (
+    axis_angle_from_rotation,
+    corner_radius,
+    intrinsic_matrix,
+    opencv_from_division,
+    rotation_angle,
+)
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.refine.lm import vfov_sigma_deg
 
@@ -50,11 +56,33 @@ def finite(value: float | None) -> float | None:
     return float(value) if value is not None and math.isfinite(value) else None
 
 
-def pose_report(pose: RelativePose) -> dict[str, Any]:
+def rotation_sigma_deg(pose: RelativePose, cameras: tuple[CameraEstimate, CameraEstimate]) -> float:
+    """The reported 1-sigma of R (degrees): the fusion's, which holds the focal lengths at the values
+    written, with their own uncertainty taken in.
+
+    R is read through the focal lengths: the part of the rotation that turns the optical axis, ω⊥ (the
+    axis-angle vector's x and y), shows in the images as pixel shifts of about f·ω⊥, so with both focal
+    lengths e^δ times the truth it reads about δ·ω⊥ off, while a turn about the optical axis does not depend
+    on f. On the car-mounted pairs, whose cameras turn 48–72°, R moved 6–15° with both true focal lengths
+    scaled by e^±0.22, where δ·|ω⊥| gives 11–13°. So R's variance takes in (|ω⊥|·σ)², σ the two cameras'
+    mean relative focal sigma as reported (a given focal length has none), less what the fusion's sigma
+    holds of it already: the fields' own sigma of the common scale (``sigma_focal_considered``), narrower
+    than the reported one, which has the camera bias and the photographs' scale. On a turned rig the fusion
+    refines the common scale from matches in a narrow strip, with a sigma far narrower than its errors, and
+    takes in none."""
+    relative = [(c.sigma.get("focal_px") or 0.0) / c.focal_px for c in cameras]
+    common = float(np.mean([r for r in relative if math.isfinite(r)] or [0.0]))
+    turn = math.degrees(float(np.hypot(*axis_angle_from_rotation(pose.R)[:2])))
+    beyond = max(common**2 - pose.sigma_focal_considered**2, 0.0)
+    return math.sqrt(pose.sigma_rotation_deg**2 + turn**2 * beyond)
+
+
+def pose_report(pose: RelativePose, cameras: tuple[CameraEstimate, CameraEstimate]) -> dict[str, Any]:
     """The report's ``pose`` block: where the relative pose came from and what the fusion measured."""
     return {
         "source": pose.source,
-        "sigma_rotation_deg": finite(pose.sigma_rotation_deg),
+        # the fusion's, with the focal lengths' uncertainty (rotation_sigma_deg)
+        "sigma_rotation_deg": finite(rotation_sigma_deg(pose, cameras)),
         "sigma_direction_deg": finite(pose.sigma_direction_deg),
         "gravity_error_deg": pose.gravity_error_deg,
         "rotation_deg": float(np.degrees(rotation_angle(pose.R))),
@@ -104,6 +132,8 @@ def assemble(
         matches_found=pose.matches_found, matches_inliers=pose.inliers, timing_ms=dict(timing_ms or {}),
         model_file=model[0], model_sha256=model[1], notes="; ".join([*warnings, *(notes or [])]),
         extra_report={
-            "pose": {**pose_report(pose), **(more_pose or {})}, **(more or {}), "warnings": list(warnings)
+            "pose": {**pose_report(pose, cameras), **(more_pose or {})},
+            **(more or {}),
+            "warnings": list(warnings),
         },
     )  # fmt: skip

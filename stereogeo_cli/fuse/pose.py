@@ -109,6 +109,9 @@ class RelativePose:
     # the 1-sigma of the two focal lengths' common log scale where the matches refined it (None: not refined,
     # the fields' sigma stands)
     sigma_common_focal: float | None = None
+    # the relative 1-sigma of the common focal scale the sigmas above take in (0: none, the focal lengths
+    # held, or their common scale refined with the pose: then it is in sigma_common_focal)
+    sigma_focal_considered: float = 0.0
     # the matches turn the cameras far apart (fuse_relative_pose's turned_rig_deg): a rig unlike the renders,
     # where the pose head was left out if it disagreed, and the sigmas of R come from the matches alone
     turned: bool = False
@@ -534,7 +537,7 @@ def _pose_from_fit(joint: _Joint, best: _Fit, split, k_bounds, focal_sigma_rel) 
         focal_scale=(float(np.exp(scales[0])), float(np.exp(scales[1]))),
         # c sits after the rotation (3), the direction (2) and the ratio d (common needs both focals free)
         sigma_common_focal=None if joint.common is None else float(np.sqrt(cov[6, 6])),
-        distortion=distortion, sigma_distortion=sigma_distortion,
+        sigma_focal_considered=considered["focal"], distortion=distortion, sigma_distortion=sigma_distortion,
     )  # fmt: skip
 
 
