@@ -587,3 +587,22 @@ def test_the_reported_rotation_sigma_takes_in_the_focal_lengths_in_proportion_to
     assert toed.sigma_focal_considered == pytest.approx(0.1)
     assert rotation_sigma_deg(toed, cameras(0.1)) == pytest.approx(toed.sigma_rotation_deg)
     assert rotation_sigma_deg(toed, cameras(0.3)) > toed.sigma_rotation_deg + 0.5 * 8.0 * 0.2
+
+
+def test_a_turned_rigs_covariance_takes_the_common_focal_scales_variance_as_the_images_read_it():
+    """The matches of a turned rig pin the common focal scale c far tighter than its errors; its variance is
+    raised to the images' read and every parameter takes in its regression on c times the extra: the
+    covariance of a Gaussian whose c has that variance, the rest as the matches tell it for a given c."""
+    from stereogeo_cli.fuse.pose import _with_common_scale_as_read
+
+    cov = np.array([[4.0, 0.3], [0.3, 0.01]])  # (a pose parameter, c): c read to 0.1 by the matches
+    assert _with_common_scale_as_read(cov, 1, 0.3) == pytest.approx(0.1)
+    slope = 0.3 / 0.01
+    assert cov[1, 1] == pytest.approx(0.09)
+    assert cov[0, 1] == pytest.approx(cov[1, 0]) and cov[0, 1] == pytest.approx(slope * 0.09)
+    assert cov[0, 0] == pytest.approx(4.0 + slope**2 * (0.09 - 0.01))
+    # what is left given c is unchanged: cov_00 − cov_01² / cov_11
+    assert cov[0, 0] - cov[0, 1] ** 2 / cov[1, 1] == pytest.approx(4.0 - 0.3**2 / 0.01)
+    wide = np.array([[4.0, 0.3], [0.3, 0.25]])  # the matches already as unsure as the images: unchanged
+    _with_common_scale_as_read(wide, 1, 0.3)
+    assert np.array_equal(wide, [[4.0, 0.3], [0.3, 0.25]])

@@ -109,8 +109,8 @@ class RelativePose:
     # the 1-sigma of the two focal lengths' common log scale where the matches refined it (None: not refined,
     # the fields' sigma stands)
     sigma_common_focal: float | None = None
-    # the relative 1-sigma of the common focal scale the sigmas above take in (0: none, the focal lengths
-    # held, or their common scale refined with the pose: then it is in sigma_common_focal)
+    # the relative 1-sigma of the two focal lengths' common scale that the sigmas above take in: the fields'
+    # (0 where a focal length was held), or on a turned rig the images' read with the camera bias
     sigma_focal_considered: float = 0.0
     # the matches turn the cameras far apart (fuse_relative_pose's turned_rig_deg): a rig unlike the renders,
     # where the pose head was left out if it disagreed, and the sigmas of R come from the matches alone
@@ -517,6 +517,9 @@ def _pose_from_fit(joint: _Joint, best: _Fit, split, k_bounds, focal_sigma_rel) 
     image centres."""
     (R, t, _, _, k), scales = best.state, best.scales
     cov = np.linalg.inv(best.H)
+    sigma_common = None
+    if joint.common is not None:  # c sits after the rotation (3), the direction (2) and the ratio d
+        sigma_common = _with_common_scale_as_read(cov, 6, joint.common)
     known = [v is None or not np.isfinite(v) or v <= 0 for v in focal_sigma_rel]
     considered = {
         "focal": 0.0 if any(known) or joint.common else 0.5 * float(focal_sigma_rel[0] + focal_sigma_rel[1])
@@ -535,10 +538,24 @@ def _pose_from_fit(joint: _Joint, best: _Fit, split, k_bounds, focal_sigma_rel) 
         sigma_rotation_deg=float(np.degrees(np.sqrt(np.trace(cov[:3, :3])))),
         sigma_direction_deg=float(np.degrees(np.sqrt(np.trace(cov[3:5, 3:5])))),
         focal_scale=(float(np.exp(scales[0])), float(np.exp(scales[1]))),
-        # c sits after the rotation (3), the direction (2) and the ratio d (common needs both focals free)
-        sigma_common_focal=None if joint.common is None else float(np.sqrt(cov[6, 6])),
-        sigma_focal_considered=considered["focal"], distortion=distortion, sigma_distortion=sigma_distortion,
+        sigma_common_focal=sigma_common,
+        sigma_focal_considered=considered["focal"] if joint.common is None else joint.common,
+        distortion=distortion, sigma_distortion=sigma_distortion,
     )  # fmt: skip
+
+
+def _with_common_scale_as_read(cov: np.ndarray, i: int, sigma: float) -> float:
+    """A turned rig's covariance (changed in place) with the variance of its common focal scale (parameter
+    ``i``) raised to ``sigma``², the images' read with the camera bias: the matches of such a rig lie in a
+    narrow strip at the inner image edges, and their 1-sigma of the scale is far narrower than its errors
+    (docs/refine.md, "Turned rigs"). Every parameter moves with the scale by its regression on it,
+    cov[:, i] / cov[i, i], and takes in that share of the extra variance (Gaussian conditioning: the rest
+    of the covariance is what the matches tell for a given scale). Returns the matches' own 1-sigma of it."""
+    variance = float(cov[i, i])
+    if np.isfinite(variance) and 0 < variance < sigma**2:
+        slope = cov[:, i] / variance
+        cov += np.outer(slope, slope) * (sigma**2 - variance)
+    return float(np.sqrt(variance))
 
 
 def _pose_head_alone(found, inliers, prior_R, prior_t, gravity_left, gravity_right, gravity_sigma_rad, conf):
