@@ -868,11 +868,12 @@ class Calibrator:
             tick = time.perf_counter()
             views = (work.net.left, work.net.right)
             for side, (view, fit, segments) in enumerate(zip(views, work.fits, work.segments, strict=True)):
-                # after the matches' focal refinement: the fusion's k is in the refined K's coordinates; a
-                # focal length with an EXIF prior is held at the combined value, as a known one is. A focal
-                # length read from the images is free in this fit: the fields' latitude is read at the
-                # network's own focal scale, and held at the written one (moved by the matches or the
-                # vanishing points) it tilts the gravity (EuRoC's roll 2.40° → 3.10°; docs/refine.md)
+                # after the matches' focal refinement: the fusion's k is in the refined K's coordinates. A
+                # focal length combined with a prior (EXIF, given with a sigma, or the vanishing points') is
+                # held at the combined value, as a known one is; one read from the fields alone is free in
+                # this fit: the fields' latitude is read at the network's own focal scale, and held at the
+                # written one (moved by the matches) it tilts the gravity (EuRoC's roll 2.40° → 3.10°). The
+                # vanishing points' focal length freed instead tilts the pitch (docs/refine.md)
                 held = fit.focal_px if work.priors[side] else work.held[side]
                 work.fits[side], work.used[side] = self._with_lines(
                     view, fit, segments, pose.distortion[side], held
