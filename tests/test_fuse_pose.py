@@ -606,3 +606,27 @@ def test_a_turned_rigs_covariance_takes_the_common_focal_scales_variance_as_the_
     wide = np.array([[4.0, 0.3], [0.3, 0.25]])  # the matches already as unsure as the images: unchanged
     _with_common_scale_as_read(wide, 1, 0.3)
     assert np.array_equal(wide, [[4.0, 0.3], [0.3, 0.25]])
+
+
+def test_a_car_rigs_turned_cameras_are_told_to_give_known_focal_lengths(shared_data):
+    """Two cameras of a car's surround rig, turned about 53° apart, with focal lengths read from the images:
+    R and T move with them, and the warning says so; given the true focal lengths, R is within a few
+    degrees and there is no such warning."""
+    import json
+
+    from stereogeo_cli.io.images import load_image
+    from stereogeo_cli.pipeline import Calibrator
+
+    folder = shared_data / "real-dev" / "driving"
+    name = "dgp_s02f0_cam08_cam09"
+    records = map(json.loads, (folder / "calib.jsonl").read_text().splitlines())
+    record = next(r for r in records if r["id"] == name)
+    images = [load_image(folder / side / f"{name}.png") for side in ("left", "right")]
+    calibrator = Calibrator(threads=1)
+    read = calibrator.calibrate(*images)
+    assert read.pose.turned and any("turn" in note and "--focal-left" in note for note in read.warnings)
+    given = calibrator.calibrate(
+        *images, focal_left=record["left"]["K"][0][0], focal_right=record["right"]["K"][0][0]
+    )
+    assert not any("--focal-left" in note for note in given.warnings)
+    assert np.degrees(rotation_error(given.pose.R, np.array(record["R"]))) < 3.0
