@@ -67,9 +67,8 @@ def rotation_sigma_deg(pose: RelativePose, cameras: tuple[CameraEstimate, Camera
     scaled by e^±0.22, where δ·|ω⊥| gives 11–13°. So R's variance takes in (|ω⊥|·σ)², σ the two cameras'
     mean relative focal sigma as reported (a given focal length has none), less what the fusion's sigma
     holds of it already: the fields' own sigma of the common scale (``sigma_focal_considered``), narrower
-    than the reported one, which has the camera bias and the photographs' scale. On a turned rig the fusion
-    refines the common scale from matches in a narrow strip, with a sigma far narrower than its errors, and
-    takes in none."""
+    than the reported one, which has the camera bias and the photographs' scale (on a turned rig, the images'
+    read with the camera bias: ``fuse.pose._with_common_scale_as_read``)."""
     relative = [(c.sigma.get("focal_px") or 0.0) / c.focal_px for c in cameras]
     common = float(np.mean([r for r in relative if math.isfinite(r)] or [0.0]))
     turn = math.degrees(float(np.hypot(*axis_angle_from_rotation(pose.R)[:2])))

@@ -113,7 +113,7 @@ class RelativePose:
     # (0 where a focal length was held), or on a turned rig the images' read with the camera bias
     sigma_focal_considered: float = 0.0
     # the matches turn the cameras far apart (fuse_relative_pose's turned_rig_deg): a rig unlike the renders,
-    # where the pose head was left out if it disagreed, and the sigmas of R come from the matches alone
+    # where the pose head was left out if it disagreed
     turned: bool = False
     # the two focal lengths were held equal (the matches could not tell their ratio from 1; without matches,
     # pipeline.hold_alike_focals: the fields read them alike)
