@@ -134,13 +134,13 @@ def pair_errors(result, record: dict) -> dict:
         row["baseline_error_rel"] = abs(float(np.linalg.norm(c.T) / np.linalg.norm(T)) - 1.0)
         row["direction_error_deg"] = _direction_error_deg(c.T, T)
     row["pose_source"] = result.pose.source
-    # the pose's errors in units of its reported 1-sigmas (the fusion's, or the pose head's; R's with the
-    # focal lengths' uncertainty taken in: fuse.assemble.rotation_sigma_deg)
-    rotation_sigma = result.calibration.extra_report.get("pose", {}).get("sigma_rotation_deg")
-    row["rotation_z"] = _z(row["rotation_error_deg"], rotation_sigma or math.inf)
+    # the pose's errors in units of the 1-sigmas its report gives (the fusion's, or the pose head's; R's with
+    # the focal lengths' uncertainty taken in: fuse.assemble.rotation_sigma_deg)
+    reported = result.calibration.extra_report.get("pose", {})
+    row["rotation_z"] = _z(row["rotation_error_deg"], reported.get("sigma_rotation_deg") or math.inf)
     if row.get("direction_error_deg") is not None:
-        row["direction_z"] = _z(row["direction_error_deg"], result.pose.sigma_direction_deg)
-        scale_sigma = result.calibration.extra_report.get("pose", {}).get("sigma_baseline_rel")
+        row["direction_z"] = _z(row["direction_error_deg"], reported.get("sigma_direction_deg") or math.inf)
+        scale_sigma = reported.get("sigma_baseline_rel")
         if scale_sigma is not None:
             row["baseline_z"] = _z(row["baseline_error_rel"], scale_sigma)
     return row
