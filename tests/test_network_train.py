@@ -615,3 +615,40 @@ def test_training_with_wide_frames_cuts_their_batches_to_wide_sizes(tmp_path, ti
     assert all(r["teacher"] == 0.0 for r in steps)
     saved = torch.load(tmp_path / "run" / "latest.pt", weights_only=True)
     assert f"{wide} (wide)" in saved["training_data"]
+
+
+def test_render_config_sets_the_on_the_fly_pairs_sampler_and_refuses_unknown_settings(tmp_path):
+    from stereogeo_cli.errors import StereoGeoError
+    from stereogeo_cli.network.train import _sources, default_conf
+
+    conf = {
+        **default_conf, "render": 5, "render_seed": 7,
+        "render_config": {"vfov_deg": [18, 40], "aspects": [2.0], "panorama_max_upsampling": 3.5},
+    }  # fmt: skip
+    (source,) = _sources(conf)
+    assert source.config.vfov_deg == (18, 40) and source.config.aspects == (2.0,)
+    assert source.config.panorama_max_upsampling == 3.5
+    _, _, calib = source[0]  # rendered with those settings: a 2:1 frame, vFoV within 18–40°
+    w, h, f = calib["left"]["width"], calib["left"]["height"], calib["left"]["K"][1][1]
+    assert w == 2 * h and 18 - 1e-6 <= np.degrees(2 * np.arctan(h / (2 * f))) <= 40 + 1e-6
+    with pytest.raises(StereoGeoError, match="unknown render_config settings: \\['vfov'\\]"):
+        _sources({**conf, "render_config": {"vfov": [18, 40]}})
+
+
+@pytest.mark.parametrize("device, message", [("gpu", "is not a torch device"), ("cuda", "sees no CUDA GPU")])
+def test_a_device_that_is_not_there_is_a_clear_error(tmp_path, tiny_dataset, device, message):
+    if device == "cuda" and torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA GPU")
+    result = _run_train(["--config", str(_config(tmp_path, tiny_dataset)), "--device", device])
+    assert result.returncode == 2
+    assert message in result.stderr and "Traceback" not in result.stderr
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_training_on_a_gpu_runs_every_field_loss_through_the_refiner(tmp_path, tiny_dataset):
+    config = _config(tmp_path, tiny_dataset, refiner_start=0, device="cuda", steps=2)
+    result = _run_train(["--config", str(config)])
+    assert result.returncode == 0, result.stderr
+    lines = [json.loads(x) for x in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    steps = [x for x in lines if x["event"] == "train"]
+    assert steps and all(np.isfinite(x["camera"]) and np.isfinite(x["total"]) for x in steps)

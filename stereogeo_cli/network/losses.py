@@ -52,15 +52,18 @@ default_conf = {
 }
 
 
-def cell_centres(height: int, width: int, stride: int = OUTPUT_STRIDE) -> tuple[torch.Tensor, torch.Tensor]:
-    """Pixel centres (x, y) [h x w] of the field cells of an image (height x width), as float32 tensors."""
+def cell_centres(
+    height: int, width: int, stride: int = OUTPUT_STRIDE, device: torch.device | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pixel centres (x, y) [h x w] of the field cells of an image (height x width), as float32 tensors
+    on ``device`` (default: the CPU)."""
     x, y = cell_pixel_coordinates(height // stride, width // stride, stride)
-    return torch.from_numpy(x).float(), torch.from_numpy(y).float()
+    return torch.from_numpy(x).float().to(device), torch.from_numpy(y).float().to(device)
 
 
 def ground_truth_fields(gravity: torch.Tensor, focal: torch.Tensor, width: int, height: int):
     """Up [B x 2 x h x w] and latitude [B x h x w] at the cell centres of images (width x height)."""
-    x, y = cell_centres(height, width)
+    x, y = cell_centres(height, width, device=gravity.device)
     u = (x[None] - width / 2) / focal[:, None, None]
     v = (y[None] - height / 2) / focal[:, None, None]
     g = gravity[:, :, None, None]
@@ -107,22 +110,22 @@ def refine_views(out: dict, view: str, height: int, width: int, conf: dict):
     lat = out[f"{view}_latitude"][:, ::s, ::s]
     c_up = out[f"{view}_up_confidence"][:, ::s, ::s]
     c_lat = out[f"{view}_latitude_confidence"][:, ::s, ::s]
-    x, y = cell_centres(height, width)
+    x, y = cell_centres(height, width, device=up.device)
     x, y = x[::s, ::s].reshape(-1).float(), y[::s, ::s].reshape(-1).float()
     batch = up.shape[0]
     up_flat = up.permute(0, 2, 3, 1).reshape(batch, -1, 2)
     lat_flat, cu, cl = lat.reshape(batch, -1), c_up.reshape(batch, -1), c_lat.reshape(batch, -1)
     starts = [
         initial_estimate(
-            up_flat[b].detach().double().numpy(), lat_flat[b].detach().double().numpy(),
-            cu[b].detach().double().numpy(), cl[b].detach().double().numpy(),
-            x.double().numpy(), y.double().numpy(), width, height,
+            up_flat[b].detach().double().cpu().numpy(), lat_flat[b].detach().double().cpu().numpy(),
+            cu[b].detach().double().cpu().numpy(), cl[b].detach().double().cpu().numpy(),
+            x.double().cpu().numpy(), y.double().cpu().numpy(), width, height,
         )
         for b in range(batch)
     ]  # fmt: skip
-    g0 = torch.tensor(np.stack([s_[0] for s_ in starts]), dtype=up.dtype)
-    f0 = torch.tensor([s_[1] for s_ in starts], dtype=up.dtype)
-    size = torch.tensor([[width, height]] * batch, dtype=up.dtype)
+    g0 = torch.tensor(np.stack([s_[0] for s_ in starts]), dtype=up.dtype, device=up.device)
+    f0 = torch.tensor([s_[1] for s_ in starts], dtype=up.dtype, device=up.device)
+    size = torch.tensor([[width, height]] * batch, dtype=up.dtype, device=up.device)
     return refine_batch(up_flat, lat_flat, cu, cl, x, y, size, g0, f0, conf={"steps": conf["refiner_steps"]})
 
 

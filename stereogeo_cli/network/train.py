@@ -40,6 +40,11 @@ SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
     "render": (0, "Additionally render this many pairs on the fly (synthetic sampler), 0 for none."),
     "render_seed": (1000, "Dataset seed of the on-the-fly pairs."),
     "panoramas": (None, "Panorama folder for the on-the-fly pairs' skies and crops."),
+    "render_config": (
+        {},
+        "Sampler settings of the on-the-fly pairs over make-data's defaults (SynthConfig fields, e.g. "
+        '{"vfov_deg": [18, 75], "aspects": [2.0, 2.4], "panorama_max_upsampling": 3.5}).',
+    ),
     "val": (None, "Dataset folder for validation (rendered from seeds never used in training)."),
     "val_count": (64, "Validation pairs used."),
     "out": ("runs/train", "Where checkpoints and logs go."),
@@ -77,6 +82,7 @@ SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
     "checkpoint_minutes": (5.0, "Write OUT/latest.pt at least this often."),
     "log_every": (20, "A progress line every this many steps."),
     "threads": (2, "Torch intra-op threads per process."),
+    "device": ("cpu", "Torch device of the model and the losses (cpu, cuda); data loading stays on the CPU."),
     "workers": (1, "Data-loading processes per training process."),
     "seed": (0, "Model init, batch order."),
     "model_version": (None, "A name for the model (default: OUT's folder name)."),
@@ -107,6 +113,17 @@ def lr_at(step: int, conf: dict) -> float:
         return conf["lr"] * (step + 1) / conf["warmup_steps"]
     passed = sum(step >= frac * conf["steps"] for frac in conf["decay_at"])
     return conf["lr"] * 0.1**passed
+
+
+def _device(name: str) -> torch.device:
+    """The torch device named by the ``device`` setting; an unknown or absent one is a clear error."""
+    try:
+        device = torch.device(name)
+    except RuntimeError as error:
+        raise StereoGeoError(f"device {name!r} is not a torch device (cpu, cuda, cuda:1, ...)") from error
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise StereoGeoError(f"device {name!r}: this machine's torch sees no CUDA GPU")
+    return device
 
 
 def _distributed() -> tuple[int, int]:
@@ -149,7 +166,13 @@ def _sources(conf: dict) -> list:
         from stereogeo_cli.synth.config import SynthConfig
 
         panoramas = Path(conf["panoramas"]) if conf["panoramas"] else None
-        sources.append(RenderedPairs(conf["render_seed"], conf["render"], SynthConfig(panoramas=panoramas)))
+        fields = set(SynthConfig.__dataclass_fields__)
+        unknown = set(conf["render_config"]) - fields
+        if unknown:
+            raise StereoGeoError(f"unknown render_config settings: {sorted(unknown)}")
+        changes = {k: tuple(v) if isinstance(v, list) else v for k, v in conf["render_config"].items()}
+        config = SynthConfig(panoramas=panoramas).replace(**changes)
+        sources.append(RenderedPairs(conf["render_seed"], conf["render"], config))
     if not sources:
         raise StereoGeoError("no training data: give --data FOLDER (from make-data) or --render N")
     return sources
@@ -192,11 +215,13 @@ def validate(
             cut = apply_resize_crop(image, rc)
             tensors.append(torch.from_numpy(np.ascontiguousarray(cut.transpose(2, 0, 1)))[None].float() / 255)
             rcs.append(rc)
-        raw = {k: v.numpy() for k, v in model(*tensors).items()}
+        device = next(model.parameters()).device
+        tensors = [t.to(device) for t in tensors]
+        raw = {k: v.cpu().numpy() for k, v in model(*tensors).items()}
         if (
             flip
         ):  # as calibrate's flip option: fields averaged with the mirrored pair's (pose: the plain run's)
-            mirrored = {k: v.numpy() for k, v in model(*(t.flip(-1) for t in tensors)).items()}
+            mirrored = {k: v.cpu().numpy() for k, v in model(*(t.flip(-1) for t in tensors)).items()}
             raw = average_with_mirrored(raw, mirrored)
         out = {k: v[0].astype(float) for k, v in raw.items()}
         for view, rc in zip(("left", "right"), rcs, strict=True):
@@ -281,7 +306,8 @@ def train(conf: dict) -> dict:
     log = _Log(out, rank == 0)
     latest = out / "latest.pt"
 
-    model = StereoGeoNet({**conf["model"], "pretrained": True})
+    # ImageNet weights for the encoder unless a checkpoint supplies every weight (init)
+    model = StereoGeoNet({**conf["model"], "pretrained": not conf["init"]})
     if conf["loss"].get("depth_weight", 0) > 0 and model.depth_head is None:
         raise StereoGeoError(
             'loss depth_weight > 0 needs a model with a depth head ("model": {"depth_head": true})'
@@ -293,6 +319,8 @@ def train(conf: dict) -> dict:
     if prefixes:
         for name, param in model.named_parameters():
             param.requires_grad_(name.startswith(prefixes))
+    device = _device(conf["device"])
+    model.to(device)
     optimizer = torch.optim.AdamW(trained, lr=conf["lr"], weight_decay=conf["weight_decay"])
     step, best, checkpoint = 0, math.inf, {}
     if conf["init"] and not (conf.get("resume") and latest.is_file()):
@@ -323,6 +351,7 @@ def train(conf: dict) -> dict:
                 f"{teacher_sha256[:12]}, was {started_with[:12]}): resume with that file as the teacher"
             )
         teacher, _ = load_checkpoint(conf["teacher"])
+        teacher.to(device)
         teacher.requires_grad_(False)
         # The teacher runs in the student's modes (batch statistics where the student trains), on the
         # whole batch, so before the first step the two agree exactly and the loss holds the function.
@@ -390,7 +419,7 @@ def train(conf: dict) -> dict:
     with Progress(*columns, console=Console(stderr=True), disable=not interactive) as bar:
         task = bar.add_task("train", total=conf["steps"], completed=step, info="")
         while step < conf["steps"]:
-            batch = next(iterator)
+            batch = {k: v.to(device) if torch.is_tensor(v) else v for k, v in next(iterator).items()}
             for group in optimizer.param_groups:
                 group["lr"] = lr_at(step, conf)
             outputs = net(batch["left"], batch["right"])
@@ -449,7 +478,7 @@ def parse_args(argv: list[str] | None = None) -> dict:
     parser.add_argument("--resume", action="store_true", help="continue from OUT/latest.pt if it exists")
     parser.add_argument("--dump-replica", help=argparse.SUPPRESS)
     for key, value in default_conf.items():
-        if key in ("data", "sizes", "wide_data", "wide_sizes", "decay_at", "loss", "model", "train_only"):
+        if isinstance(value, (list, dict)):  # lists and dicts come from the --config file
             continue
         kind = type(value) if value is not None else str
         parser.add_argument(f"--{key.replace('_', '-')}", type=kind, default=None, help=SETTINGS[key][1])

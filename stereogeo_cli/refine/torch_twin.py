@@ -157,10 +157,10 @@ def refine_batch(
     log_f_max = torch.log(height / (2 * math.tan(math.radians(conf["min_vfov_deg"]) / 2)))
     g = gravity_init / gravity_init.norm(dim=-1, keepdim=True)
     log_f = torch.minimum(torch.maximum(torch.log(focal_init.to(up.dtype)), log_f_min), log_f_max)
-    lam = torch.full((batch,), conf["lambda_init"], dtype=up.dtype)
-    eye = torch.eye(3, dtype=up.dtype)
+    lam = torch.full((batch,), conf["lambda_init"], dtype=up.dtype, device=up.device)
+    eye = torch.eye(3, dtype=up.dtype, device=up.device)
     scale = conf["huber_scale"]
-    near = torch.zeros(batch, dtype=torch.bool)
+    near = torch.zeros(batch, dtype=torch.bool, device=up.device)
     for _ in range(conf["steps"]):
         # levenberg_marquardt's loop, batched: the damped step, kept where it lowers the cost
         cost, H, grad, damping = _cost_and_normal_equations(g, log_f, data, scale, near)
