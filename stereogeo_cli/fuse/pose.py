@@ -343,16 +343,7 @@ def fuse_relative_pose(
             joint, R0, t0, mask0, R_p, head_R, head_t, split, distortion_evidence
         )
     else:
-        k_bounds = _distortion_bounds(K_left, K_right, conf) if again.radial else None
-        equal = again.equal and split is not None
-        used_split, d = _equal_split(split, K_left, K_right) if equal else (split, 0.0)
-        k = (0.0, 0.0)
-        if k_bounds is not None:  # the first fusion's lens, in the given K's normalised coordinates
-            k = tuple(
-                float(np.clip(again.k[i] * (K[1, 1] / again.focal_px[i]) ** 2, *k_bounds[i]))
-                for i, K in enumerate((K_left, K_right))
-            )
-        best = joint.fit(_State(R0, t0, d, 0.0, k), mask0, k_bounds, used_split, keep_k=True)
+        best, used_split, k_bounds = _fit_again(joint, again, R0, t0, mask0, split)
     pose = _pose_from_fit(joint, best, used_split, k_bounds, focal_sigma_rel)
     pose.matches_found, pose.turned, pose.notes = found, turned, notes
     pose.equal_focals = used_split is not split
@@ -378,6 +369,24 @@ def _choose(joint: _Joint, R0, t0, mask0, R_p, head_R, head_t, split, distortion
         best = joint.fit(best.state, best.mask, k_bounds, split)
     k_bounds = k_bounds if radial else None
     best, used_split = _held_equal_focals(joint, best, split, k_bounds)
+    return best, used_split, k_bounds
+
+
+def _fit_again(joint: _Joint, again: FusionStart, R0, t0, mask0, split):
+    """A fusion ``again``: one fit from the earlier fusion's pose and inliers, with its choices (a lens or
+    none, equal focal lengths or not) and its lens carried into the given K's normalised coordinates.
+    Returns the fit, its split and its k bounds (None: no lens)."""
+    K_left, K_right = joint.K_left, joint.K_right
+    k_bounds = _distortion_bounds(K_left, K_right, joint.conf) if again.radial else None
+    equal = again.equal and split is not None
+    used_split, d = _equal_split(split, K_left, K_right) if equal else (split, 0.0)
+    k = (0.0, 0.0)
+    if k_bounds is not None:  # the first fusion's lens, in the given K's normalised coordinates
+        k = tuple(
+            float(np.clip(again.k[i] * (K[1, 1] / again.focal_px[i]) ** 2, *k_bounds[i]))
+            for i, K in enumerate((K_left, K_right))
+        )
+    best = joint.fit(_State(R0, t0, d, 0.0, k), mask0, k_bounds, used_split, keep_k=True)
     return best, used_split, k_bounds
 
 
