@@ -4,6 +4,9 @@ One context per process, created lazily and reused (:func:`get_context`). The pr
 project's camera convention exactly: OpenCV axes (x right, y down, z forward), principal point at
 (w/2, h/2), pixel (0, 0) the centre of the top-left pixel. Frames are rendered "upside down" in GL's
 window coordinates so that GL row 0 is image row 0 and no flip is needed when reading back.
+
+Where Mesa is absent and a GPU driver provides EGL (a GPU training machine), the context is the driver's:
+the same scenes and cameras, not the same bytes.
 """
 
 from __future__ import annotations
