@@ -115,14 +115,14 @@ def refine_views(out: dict, view: str, height: int, width: int, conf: dict):
     batch = up.shape[0]
     up_flat = up.permute(0, 2, 3, 1).reshape(batch, -1, 2)
     lat_flat, cu, cl = lat.reshape(batch, -1), c_up.reshape(batch, -1), c_lat.reshape(batch, -1)
+    # the starts come from NumPy: the batch crosses to the host once
+    up_np, lat_np, cu_np, cl_np, x_np, y_np = (
+        t.detach().double().cpu().numpy() for t in (up_flat, lat_flat, cu, cl, x, y)
+    )
     starts = [
-        initial_estimate(
-            up_flat[b].detach().double().cpu().numpy(), lat_flat[b].detach().double().cpu().numpy(),
-            cu[b].detach().double().cpu().numpy(), cl[b].detach().double().cpu().numpy(),
-            x.double().cpu().numpy(), y.double().cpu().numpy(), width, height,
-        )
+        initial_estimate(up_np[b], lat_np[b], cu_np[b], cl_np[b], x_np, y_np, width, height)
         for b in range(batch)
-    ]  # fmt: skip
+    ]
     g0 = torch.tensor(np.stack([s_[0] for s_ in starts]), dtype=up.dtype, device=up.device)
     f0 = torch.tensor([s_[1] for s_ in starts], dtype=up.dtype, device=up.device)
     size = torch.tensor([[width, height]] * batch, dtype=up.dtype, device=up.device)

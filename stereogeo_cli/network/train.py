@@ -203,6 +203,7 @@ def validate(
     from stereogeo_cli.refine import refine_camera
 
     was_training = model.training
+    device = next(model.parameters()).device
     model.eval()
     errors: dict[str, list[float]] = {
         k: [] for k in ("roll", "pitch", "vfov", "rotation", "translation", "direction", "scale")
@@ -215,7 +216,6 @@ def validate(
             cut = apply_resize_crop(image, rc)
             tensors.append(torch.from_numpy(np.ascontiguousarray(cut.transpose(2, 0, 1)))[None].float() / 255)
             rcs.append(rc)
-        device = next(model.parameters()).device
         tensors = [t.to(device) for t in tensors]
         raw = {k: v.cpu().numpy() for k, v in model(*tensors).items()}
         if (
