@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -24,7 +25,7 @@ import numpy as np
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.fuse import Matches, RelativePose, fuse_relative_pose, share_gravity
 from stereogeo_cli.fuse.assemble import CameraEstimate, assemble, focal_sigmas
-from stereogeo_cli.fuse.matches import detect_features, match_detected
+from stereogeo_cli.fuse.matches import Features, detect_features, match_detected
 from stereogeo_cli.fuse.pose import default_conf as fuse_conf
 from stereogeo_cli.fuse.scale import DepthField, baseline_from_depth
 from stereogeo_cli.fuse.scale import default_conf as scale_conf
@@ -170,8 +171,7 @@ class CalibrationResult:
 
 def _flat_futures(work) -> list:
     """The futures of ``Calibrator._start_image_work``'s result (a tuple of them and None)."""
-    features, *others = work
-    return [*features, *(future for future in others if future is not None)]
+    return [future for future in work if future is not None]
 
 
 def _timed(function, *args):
@@ -338,6 +338,9 @@ class Calibrator:
         # the features and the straight edges' detection need no network output: they run on the pool's
         # threads while ONNX Runtime runs (all three release the GIL)
         self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-pool")
+        # SIFT builds a scale space of about 70 MB for a 640 x 480 image: one image at a time (this pair's,
+        # or the next pair's started ahead) keeps the peak memory to one of them
+        self._features_lock = threading.Lock()
         self._view_samples: dict[int, tuple[ViewFields, FieldSamples]] = {}
         self._ahead: tuple | None = None  # (left, right, image work) of the pair to be calibrated next
         if first_pair is not None:
@@ -729,14 +732,12 @@ class Calibrator:
     def _start_image_work(self, left: np.ndarray, right: np.ndarray):
         """The two images' features, their line segments and the lens those show, and the edges for the
         vanishing points need no network output: they run on the pool's threads while ONNX Runtime and
-        the refiner run (all release the GIL). In the order the fusion needs them: the features, one image
-        per thread, then the segments and their lens; the edges last, as their Manhattan frames are fitted
-        while the fusion runs. Returns the features' futures, the segments' and the edges' (None where the
-        line segments or the vanishing points are off)."""
+        the refiner run (all release the GIL). In the order the fusion needs them: the two images' features
+        on one thread, the segments and their lens on the other; the edges last, as their Manhattan frames
+        are fitted while the fusion runs. Returns the features' future, the segments' and the edges' (None
+        where the line segments or the vanishing points are off)."""
         conf = self.conf
-        features = tuple(
-            self._pool.submit(_timed, detect_features, image, conf["match"]) for image in (left, right)
-        )
+        features = self._pool.submit(self._features, left, right)
         finding_lines = None
         if conf["lines"]["enabled"]:
             fits_lens = conf["plumb"]["enabled"] and conf["fuse"].get("distortion", fuse_conf["distortion"])
@@ -749,10 +750,15 @@ class Calibrator:
             )
         return features, finding_lines, finding_edges
 
+    def _features(self, left: np.ndarray, right: np.ndarray) -> tuple[tuple[Features, float], ...]:
+        """Both images' features, one after the other (``_features_lock``), each with its milliseconds."""
+        with self._features_lock:
+            return tuple(_timed(detect_features, image, self.conf["match"]) for image in (left, right))
+
     def _matches(self, features) -> tuple[Matches, float]:
-        """The matches between the two images' features (``_start_image_work``'s futures), and the
+        """The matches between the two images' features (``_start_image_work``'s future), and the
         milliseconds spent detecting and matching them."""
-        (left, left_ms), (right, right_ms) = (future.result() for future in features)
+        (left, left_ms), (right, right_ms) = features.result()
         matches, match_ms = _timed(match_detected, left, right, self.conf["match"])
         return matches, left_ms + right_ms + match_ms
 

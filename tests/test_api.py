@@ -82,6 +82,38 @@ def test_the_next_pairs_image_work_started_ahead_gives_the_same_calibration(exam
     assert calibrator._ahead is None and len(started) == 5
 
 
+def test_one_images_features_at_a_time_this_pairs_and_the_next(example_pair, onnx_model, monkeypatch):
+    """SIFT's scale space is the largest allocation of a calibration (about 70 MB at 640 x 480): the two
+    images' features, and the next pair's started ahead, are built one image at a time, so the peak memory
+    is one image's."""
+    import threading
+    import time
+
+    import stereogeo_cli.pipeline as pipeline
+
+    running, most, calls, lock = [0], [0], [0], threading.Lock()
+    detect = pipeline.detect_features
+
+    def counted(*args, **kwargs):
+        with lock:
+            running[0] += 1
+            calls[0] += 1
+            most[0] = max(most[0], running[0])
+        try:
+            time.sleep(0.05)  # long enough that two pool threads would overlap
+            return detect(*args, **kwargs)
+        finally:
+            with lock:
+                running[0] -= 1
+
+    monkeypatch.setattr(pipeline, "detect_features", counted)
+    images = [stereogeo_cli.load_image(p) for p in example_pair]
+    calibrator = stereogeo_cli.Calibrator(onnx_model, threads=1, first_pair=(images[0], images[1]))
+    calibrator.calibrate(*images, upcoming=lambda: (images[1], images[0]))
+    calibrator.calibrate(images[1], images[0])
+    assert calls[0] >= 4 and most[0] == 1
+
+
 def test_the_first_pairs_image_work_started_with_the_session_gives_the_same_calibration(
     example_pair, onnx_model
 ):
