@@ -1,12 +1,15 @@
 """The Python front door: the same calibration as the CLI, and a swapped pair gives the mirrored rig."""
 
 import json
+import threading
+import time
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 import stereogeo_cli
+import stereogeo_cli.pipeline as pipeline
 from stereogeo_cli.cli import app
 from stereogeo_cli.geometry import rotation_angle
 
@@ -86,11 +89,6 @@ def test_one_images_features_at_a_time_this_pairs_and_the_next(example_pair, onn
     """SIFT's scale space is the largest allocation of a calibration (about 70 MB at 640 x 480): the two
     images' features, and the next pair's started ahead, are built one image at a time, so the peak memory
     is one image's."""
-    import threading
-    import time
-
-    import stereogeo_cli.pipeline as pipeline
-
     running, most, calls, lock = [0], [0], [0], threading.Lock()
     detect = pipeline.detect_features
 
