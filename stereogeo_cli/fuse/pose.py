@@ -148,19 +148,26 @@ def ray_angles(normalised_left: np.ndarray, normalised_right: np.ndarray, R: np.
 
 def sampson_errors(F: np.ndarray, left: np.ndarray, right: np.ndarray) -> np.ndarray:
     """Signed Sampson errors [N] in pixels of matches left, right [N x 2] under F (x_rightᵀ F x_left = 0)."""
-    return _sampson(F, left, right)[0]
+    return _sampson(F, _homogeneous(left), _homogeneous(right))[0]
 
 
-def _sampson(F: np.ndarray, left: np.ndarray, right: np.ndarray, dF: np.ndarray | None = None):
-    """Sampson errors s = a / √D [N] (a = x_rᵀ F x_l; D = the squared first two entries of F x_l and
-    Fᵀ x_r), and with ``dF`` [P x 3 x 3] (F's derivatives with respect to P parameters) the errors'
-    derivatives [N x P] with respect to those parameters."""
-    pl = np.column_stack([left, np.ones(len(left))])
-    pr = np.column_stack([right, np.ones(len(right))])
+def _homogeneous(points: np.ndarray) -> np.ndarray:
+    """Pixel points [N x 2] as homogeneous ones [N x 3] (third coordinate 1)."""
+    out = np.ones((len(points), 3))
+    out[:, :2] = points
+    return out
+
+
+def _sampson(F: np.ndarray, pl: np.ndarray, pr: np.ndarray, dF: np.ndarray | None = None):
+    """Sampson errors s = a / √D [N] of homogeneous points ``pl``, ``pr`` [N x 3] (a = x_rᵀ F x_l; D = the
+    squared first two entries of F x_l and Fᵀ x_r), and with ``dF`` [P x 3 x 3] (F's derivatives with
+    respect to P parameters) the errors' derivatives [N x P] with respect to those parameters."""
     Fl = pl @ F.T
     Ftr = pr @ F
-    algebraic = np.sum(pr * Fl, axis=1)
-    denom = np.maximum(Fl[:, 0] ** 2 + Fl[:, 1] ** 2 + Ftr[:, 0] ** 2 + Ftr[:, 1] ** 2, 1e-300)
+    algebraic = np.einsum("ni,ni->n", pr, Fl)
+    denom = np.maximum(
+        np.einsum("ni,ni->n", Fl[:, :2], Fl[:, :2]) + np.einsum("ni,ni->n", Ftr[:, :2], Ftr[:, :2]), 1e-300
+    )
     root = np.sqrt(denom)
     errors = algebraic / root
     if dF is None:
@@ -802,10 +809,12 @@ class _PoseProblem:
         return fundamental_matrix(_scaled(self.K[0], s_l), _scaled(self.K[1], s_r), state.R, state.t)
 
     def points(self, side: int, k_side: float) -> np.ndarray:
-        """The matches of one side undistorted with k (cached: most evaluations share k)."""
+        """The matches of one side undistorted with k, homogeneous [N x 3] (cached: most evaluations share
+        k)."""
         key = (side, k_side)
         if key not in self.undistorted:
-            self.undistorted[key] = undistort_division((self.left, self.right)[side], self.K[side], k_side)
+            points = undistort_division((self.left, self.right)[side], self.K[side], k_side)
+            self.undistorted[key] = _homogeneous(points)
         return self.undistorted[key]
 
     def moved(self, state: _State, delta) -> _State:

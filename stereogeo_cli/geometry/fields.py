@@ -60,11 +60,12 @@ def up_and_sin_latitude(
     gravity: np.ndarray, focal: float, x: np.ndarray, y: np.ndarray, cx: float, cy: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Up field [N x 2] and sine of the latitude [N] at pixel coordinates x, y [N] (the refiner's model)."""
-    g = np.asarray(gravity, dtype=float)
+    gx, gy, gz = np.asarray(gravity, dtype=float).tolist()
     u, v = _normalised(x, y, focal, cx, cy)
-    a = np.stack([g[0] - g[2] * u, g[1] - g[2] * v], axis=-1)
-    up = a / np.sqrt(a[:, 0] ** 2 + a[:, 1] ** 2)[:, None]
-    sin_lat = (g[0] * u + g[1] * v + g[2]) / np.sqrt(u * u + v * v + 1.0)
+    a_x, a_y = gx - gz * u, gy - gz * v
+    inverse_norm = 1.0 / np.sqrt(a_x * a_x + a_y * a_y)
+    up = np.stack([a_x * inverse_norm, a_y * inverse_norm], axis=-1)
+    sin_lat = (gx * u + gy * v + gz) / np.sqrt(u * u + v * v + 1.0)
     return up, sin_lat
 
 
@@ -92,27 +93,31 @@ def fields_and_jacobian_factors(
     d sin(latitude) / dθ [N x 3]. The refiner uses the factors: |perp| = 1 makes JᵀJ = k·kᵀ.
     """
     g = np.asarray(gravity, dtype=float)
-    B = tangent_basis(g)  # [3 x 2]
+    (b00, b01), (b10, b11), (b20, b21) = tangent_basis(g).tolist()  # the basis B [3 x 2], as floats
+    gx, gy, gz = g.tolist()
     u, v = _normalised(x, y, focal, cx, cy)
 
     # up = a/|a| with a = (g_x - g_z·u, g_y - g_z·v). For a 2-vector, I - up·upᵀ = perp·perpᵀ with
     # perp = (-up_y, up_x), so d up = perp · (perpᵀ d a) / |a|: a rank-one Jacobian per pixel.
-    a_x, a_y = g[0] - g[2] * u, g[1] - g[2] * v
-    a_norm = np.sqrt(a_x * a_x + a_y * a_y)
-    up = np.stack([a_x, a_y], axis=-1) / a_norm[:, None]
-    perp = np.stack([-up[:, 1], up[:, 0]], axis=-1)
-    perp_uv = perp[:, 0] * u + perp[:, 1] * v
+    a_x, a_y = gx - gz * u, gy - gz * v
+    inverse_norm = 1.0 / np.sqrt(a_x * a_x + a_y * a_y)
+    up_x, up_y = a_x * inverse_norm, a_y * inverse_norm
+    up = np.stack([up_x, up_y], axis=-1)
+    perp = np.stack([-up_y, up_x], axis=-1)
+    perp_uv = up_x * v - up_y * u
     k = np.empty((len(u), 3))
-    # perpᵀ d a / d g = (perp_x, perp_y, -perp·(u, v)); d(u, v)/d log f = -(u, v)
-    k[:, :2] = (np.stack([perp[:, 0], perp[:, 1], -perp_uv], axis=-1) @ B) / a_norm[:, None]
-    k[:, 2] = g[2] * perp_uv / a_norm
+    # perpᵀ d a / d g = (perp_x, perp_y, -perp·(u, v)), times B; d(u, v)/d log f = -(u, v)
+    k[:, 0] = (b10 * up_x - b00 * up_y - b20 * perp_uv) * inverse_norm
+    k[:, 1] = (b11 * up_x - b01 * up_y - b21 * perp_uv) * inverse_norm
+    k[:, 2] = gz * perp_uv * inverse_norm
 
     # sin(lat) = g · ray, ray = p/|p|, p = (u, v, 1); d ray / d log f = (I - ray·rayᵀ)(-u, -v, 0)/|p|
-    p_norm = np.sqrt(u * u + v * v + 1.0)
-    ray = np.stack([u, v, np.ones_like(u)], axis=-1) / p_norm[:, None]
-    sin_lat = ray @ g
+    inverse_p = 1.0 / np.sqrt(u * u + v * v + 1.0)
+    g_uv = gx * u + gy * v
+    sin_lat = (g_uv + gz) * inverse_p
     J_lat = np.empty((len(u), 3))
-    J_lat[:, :2] = ray @ B
-    ray_uv = ray[:, 0] * u + ray[:, 1] * v  # ray · (u, v, 0)
-    J_lat[:, 2] = (-(g[0] * u + g[1] * v) + sin_lat * ray_uv) / p_norm
+    J_lat[:, 0] = (b00 * u + b10 * v + b20) * inverse_p
+    J_lat[:, 1] = (b01 * u + b11 * v + b21) * inverse_p
+    ray_uv = (u * u + v * v) * inverse_p  # ray · (u, v, 0)
+    J_lat[:, 2] = (sin_lat * ray_uv - g_uv) * inverse_p
     return up, sin_lat, perp, k, J_lat

@@ -6,6 +6,8 @@ pitch > 0 looks up. Angles are radians unless a name ends in ``_deg``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -30,29 +32,29 @@ def tangent_basis(gravity: np.ndarray) -> np.ndarray:
 
     The first column is d g / d pitch and the second is (d g / d roll) / cos(pitch), so the tangent
     coordinates are (pitch, roll·cos(pitch)) to first order. Away from the poles (|pitch| < 90°) the
-    basis is smooth; at a pole any orthonormal pair is returned.
+    basis is smooth; at a pole any orthonormal pair is returned. (In plain floats: the fits call it at every
+    step, and numpy's small-array calls cost more than the arithmetic.)
     """
-    g = np.asarray(gravity, dtype=float)
-    g = g / np.linalg.norm(g)
-    horizontal = np.array([g[0], g[1], 0.0])
-    norm = np.linalg.norm(horizontal)
+    x, y, z = np.asarray(gravity, dtype=float).tolist()
+    length = math.sqrt(x * x + y * y + z * z)
+    x, y, z = x / length, y / length, z / length
+    norm = math.sqrt(x * x + y * y)  # of the horizontal part
     if norm < 1e-12:  # looking straight up or down
         return np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
     # g = (-sin r cos p, -cos r cos p, sin p): d/dp = (sin r sin p, cos r sin p, cos p)
-    h = horizontal / norm  # = (-sin r, -cos r, 0)
-    e_pitch = np.array([-h[0] * g[2], -h[1] * g[2], norm])
-    e_roll = np.array([h[1], -h[0], 0.0])  # (-cos r, sin r, 0) = (d g / d roll) / cos p
-    return np.stack([e_pitch, e_roll], axis=1)
+    hx, hy = x / norm, y / norm  # = (-sin r, -cos r)
+    # columns: d g / d pitch, and (-cos r, sin r, 0) = (d g / d roll) / cos p
+    return np.array([[-hx * z, hy], [-hy * z, -hx], [norm, 0.0]])
 
 
 def retract_on_sphere(gravity: np.ndarray, delta: np.ndarray, basis: np.ndarray | None = None) -> np.ndarray:
     """Move a unit vector [3] along the sphere by the tangent step ``delta`` [2] (exponential map)."""
     B = tangent_basis(gravity) if basis is None else basis
     step = B @ np.asarray(delta, dtype=float)
-    angle = np.linalg.norm(step)
+    angle = math.sqrt(float(step @ step))
     if angle < 1e-15:
         return np.asarray(gravity, dtype=float).copy()
-    return np.cos(angle) * gravity + np.sin(angle) * step / angle
+    return math.cos(angle) * gravity + (math.sin(angle) / angle) * step
 
 
 def gravity_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -2,34 +2,44 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix [3 x 3] of v [3]: skew(v) @ w == cross(v, w)."""
-    x, y, z = np.asarray(v, dtype=float)
+    x, y, z = np.asarray(v, dtype=float).tolist()
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def rotation_from_axis_angle(rotvec: np.ndarray) -> np.ndarray:
-    """Rodrigues: rotation vector [3] (axis × angle in radians) → matrix [3 x 3]."""
-    rotvec = np.asarray(rotvec, dtype=float)
-    angle = np.linalg.norm(rotvec)
+    """Rodrigues: rotation vector [3] (axis × angle in radians) → matrix [3 x 3] (in plain floats, as
+    :func:`quaternion_from_rotation`)."""
+    x, y, z = np.asarray(rotvec, dtype=float).tolist()
+    angle = math.sqrt(x * x + y * y + z * z)
     if angle < 1e-12:
-        return np.eye(3) + skew(rotvec)
-    K = skew(rotvec / angle)
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+        return np.array([[1.0, -z, y], [z, 1.0, -x], [-y, x, 1.0]])
+    x, y, z = x / angle, y / angle, z / angle
+    s, c = math.sin(angle), 1.0 - math.cos(angle)
+    # I + sin·K + (1 − cos)·K² with K = [axis]ₓ, K² = axis·axisᵀ − I
+    return np.array(
+        [
+            [1.0 + c * (x * x - 1.0), -s * z + c * x * y, s * y + c * x * z],
+            [s * z + c * x * y, 1.0 + c * (y * y - 1.0), -s * x + c * y * z],
+            [-s * y + c * x * z, s * x + c * y * z, 1.0 + c * (z * z - 1.0)],
+        ]
+    )
 
 
 def axis_angle_from_rotation(R: np.ndarray) -> np.ndarray:
     """Inverse of :func:`rotation_from_axis_angle` (via the quaternion, stable near 0 and π)."""
-    q = quaternion_from_rotation(R)
-    w, xyz = q[0], q[1:]
-    s = np.linalg.norm(xyz)
+    w, x, y, z = quaternion_from_rotation(R).tolist()
+    s = math.sqrt(x * x + y * y + z * z)
     if s < 1e-12:
-        return 2.0 * xyz
-    angle = 2.0 * np.arctan2(s, w)
-    return xyz / s * angle
+        return np.array([2.0 * x, 2.0 * y, 2.0 * z])
+    scale = 2.0 * math.atan2(s, w) / s
+    return np.array([x * scale, y * scale, z * scale])
 
 
 def quaternion_to_rotation(q: np.ndarray) -> np.ndarray:
@@ -49,27 +59,28 @@ def quaternion_to_rotation(q: np.ndarray) -> np.ndarray:
 
 
 def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
-    """Rotation matrix [3 x 3] → unit quaternion (w, x, y, z) with w ≥ 0 (Shepperd's method)."""
-    R = np.asarray(R, dtype=float)
-    trace = np.trace(R)
-    diag = np.diag(R)
-    k = int(np.argmax([trace, *diag]))
+    """Rotation matrix [3 x 3] → unit quaternion (w, x, y, z) with w ≥ 0 (Shepperd's method; in plain floats:
+    the fits call it at every step, and numpy's small-array calls cost more than the arithmetic)."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = np.asarray(R, dtype=float).tolist()
+    trace = r00 + r11 + r22
+    candidates = (trace, r00, r11, r22)
+    k = candidates.index(max(candidates))  # the first of equal ones, as numpy's argmax
     if k == 0:
-        w = 0.5 * np.sqrt(max(1.0 + trace, 0.0))
-        q = np.array(
-            [w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w)]
-        )
+        w = 0.5 * math.sqrt(max(1.0 + trace, 0.0))
+        q = [w, (r21 - r12) / (4 * w), (r02 - r20) / (4 * w), (r10 - r01) / (4 * w)]
     else:
+        rows = ((r00, r01, r02), (r10, r11, r12), (r20, r21, r22))
         i = k - 1
         j, m = (i + 1) % 3, (i + 2) % 3
-        s = 0.5 * np.sqrt(max(1.0 + R[i, i] - R[j, j] - R[m, m], 0.0))
-        q = np.empty(4)
+        s = 0.5 * math.sqrt(max(1.0 + rows[i][i] - rows[j][j] - rows[m][m], 0.0))
+        q = [0.0] * 4
         q[1 + i] = s
-        q[0] = (R[m, j] - R[j, m]) / (4 * s)
-        q[1 + j] = (R[j, i] + R[i, j]) / (4 * s)
-        q[1 + m] = (R[m, i] + R[i, m]) / (4 * s)
-    q /= np.linalg.norm(q)
-    return q if q[0] >= 0 else -q
+        q[0] = (rows[m][j] - rows[j][m]) / (4 * s)
+        q[1 + j] = (rows[j][i] + rows[i][j]) / (4 * s)
+        q[1 + m] = (rows[m][i] + rows[i][m]) / (4 * s)
+    norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    sign = 1.0 if q[0] >= 0 else -1.0
+    return np.array([sign * v / norm for v in q])
 
 
 def rotation_angle(R: np.ndarray) -> float:

@@ -172,14 +172,15 @@ def combine_focal(focal: float, sigma: float, prior_focal: float, prior_sigma: f
     return combined, combined / math.sqrt(sum(weights))
 
 
-def huber(s: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """Scaled Huber on squared residuals s: (ρ(s), ρ'(s)); ρ = s below scale², 2·scale·√s - scale² above."""
+def huber(s: np.ndarray, scale: float) -> np.ndarray:
+    """Scaled Huber ρ(s) on squared residuals s: s below scale², 2·scale·√s − scale² above."""
     a2 = scale * scale
-    small = s <= a2
-    root = np.sqrt(np.maximum(s, a2))
-    rho = np.where(small, s, 2.0 * scale * root - a2)
-    drho = np.where(small, 1.0, scale / root)
-    return rho, drho
+    return np.where(s <= a2, s, 2.0 * scale * np.sqrt(np.maximum(s, a2)) - a2)
+
+
+def huber_weight(s: np.ndarray, scale: float) -> np.ndarray:
+    """ρ'(s) of :func:`huber`: 1 below scale², scale/√s above (the IRLS weight)."""
+    return scale / np.sqrt(np.maximum(s, scale * scale))
 
 
 def _sample_grid(height: int, width: int, max_samples: int | None) -> tuple[np.ndarray, np.ndarray]:
@@ -236,8 +237,8 @@ class _Problem:
         up, sin_lat = up_and_sin_latitude(g, np.exp(log_f), self.x, self.y, self.cx, self.cy)
         r_up = self.up - up
         r_lat = self.sin_lat - sin_lat
-        rho_up, _ = huber(np.sum(r_up * r_up, axis=1), self.scale)
-        rho_lat, _ = huber(r_lat * r_lat, self.scale)
+        rho_up = huber(np.einsum("ij,ij->i", r_up, r_up), self.scale)
+        rho_lat = huber(r_lat * r_lat, self.scale)
         data = (np.dot(self.c_up, rho_up) + np.dot(self.c_lat, rho_lat)) / self.n
         return float(data) + self._prior_cost(g, log_f)
 
@@ -256,13 +257,13 @@ class _Problem:
         )
         r_up = self.up - up
         r_lat = self.sin_lat - sin_lat
-        s_up = np.sum(r_up * r_up, axis=1)
+        s_up = np.einsum("ij,ij->i", r_up, r_up)
         s_lat = r_lat * r_lat
-        w_up = self.c_up * huber(s_up, self.scale)[1]
-        w_lat = self.c_lat * huber(s_lat, self.scale)[1]
+        w_up = self.c_up * huber_weight(s_up, self.scale)
+        w_lat = self.c_lat * huber_weight(s_lat, self.scale)
         # d up / dθ = perp·kᵀ with |perp| = 1, so Jᵀ W J = Σ w k kᵀ and Jᵀ W r = Σ w (perp·r) k.
         # The residual is prediction - model, so its Jacobian is -J.
-        r_perp = np.sum(perp * r_up, axis=1)
+        r_perp = np.einsum("ij,ij->i", perp, r_up)
         wk = k * w_up[:, None]
         wJ_lat = J_lat * w_lat[:, None]
         grad = -(wk.T @ r_perp + wJ_lat.T @ r_lat)

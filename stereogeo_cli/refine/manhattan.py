@@ -135,8 +135,8 @@ class _Frame:
         f, (cx, cy) = self.focal(x), self.centre
         d = self.directions(x) if d is None else d
         if focal_only:
-            return np.stack([f * d[:, 0], f * d[:, 1], np.zeros(3)], axis=1)
-        return np.stack([f * d[:, 0] + cx * d[:, 2], f * d[:, 1] + cy * d[:, 2], d[:, 2]], axis=1)
+            return d @ np.array([[f, 0.0, 0.0], [0.0, f, 0.0], [0.0, 0.0, 0.0]])
+        return d @ np.array([[f, 0.0, 0.0], [0.0, f, 0.0], [cx, cy, 1.0]])  # rows K·d
 
     def _parts(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(l·p, l₁, l₂), each [N x 3]: per segment, against each vanishing point (rows of ``points``)."""
