@@ -1,6 +1,8 @@
 """The Python front door: the same calibration as the CLI, and a swapped pair gives the mirrored rig."""
 
 import json
+import os
+import sys
 import threading
 import time
 
@@ -110,6 +112,35 @@ def test_one_images_features_at_a_time_this_pairs_and_the_next(example_pair, onn
     calibrator.calibrate(*images, upcoming=lambda: (images[1], images[0]))
     calibrator.calibrate(images[1], images[0])
     assert calls[0] >= 4 and most[0] == 1
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice values are Linux's")
+def test_the_edges_yield_the_cores_and_nothing_else_does(example_pair, onnx_model, monkeypatch):
+    """The vanishing points' edges, needed only after the fusion, run at a lower priority than the features
+    the fusion waits for; the user's own thread (and so the rest of their program) keeps its priority."""
+    nice = {}
+    detect_edges, detect_sift = pipeline.detect_segments, pipeline.detect_features
+
+    def own_nice():
+        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    def segments(image, short, *args, **kwargs):
+        nice.setdefault(f"segments {short}", own_nice())
+        return detect_edges(image, short, *args, **kwargs)
+
+    def features(*args, **kwargs):
+        nice.setdefault("features", own_nice())
+        return detect_sift(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "detect_segments", segments)
+    monkeypatch.setattr(pipeline, "detect_features", features)
+    before = own_nice()
+    images = [stereogeo_cli.load_image(p) for p in example_pair]
+    stereogeo_cli.Calibrator(onnx_model, threads=1).calibrate(*images)
+    edges = nice[f"segments {pipeline.manhattan_conf['max_short_side']}"]
+    lines = nice[f"segments {pipeline.lines_conf['max_short_side']}"]
+    assert own_nice() == before and nice["features"] == before and lines == before
+    assert edges == min(before + 10, 19) > before or before == 19
 
 
 def test_the_first_pairs_image_work_started_with_the_session_gives_the_same_calibration(
