@@ -327,7 +327,7 @@ def test_a_lens_held_at_its_bound_gets_its_derivative_and_steps_the_fit_can_take
     assert problem.cost(state._replace(k=(-1e-3, 0.0))) > problem.cost(state)  # k pulls beyond its bound
     H, g = problem.normal_equations(state)
     assert g[5] == 0.0 and not H[5, :5].any() and H[5, 5] > 0
-    assert problem.hessian[5, :5].any()
+    assert problem.hessian(state)[5, :5].any()
     settings = Settings(fuse_conf["iterations"], 1e-3, 1e6, 1e-6, 1e-10)
     fit = levenberg_marquardt(state, problem.cost, problem.normal_equations, problem.moved, settings)
     assert fit.converged and fit.x.k[0] == 0.0

@@ -5,6 +5,7 @@ Convention (fixed): ``X_right = R @ X_left + T``, T in metres.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -444,7 +445,7 @@ class _Joint:
         conf, noise, matches = self.conf, self.noise, self.matches
         state = start if keep_k else start._replace(k=(0.0, 0.0))
         for _ in range(2):
-            state, H, scales, _ = self.refine(state, mask, split, k_bounds)
+            state, hessian, scales, _ = self.refine(state, mask, split, k_bounds)
             R, t, d, c, k = state
             K_l, K_r = _scaled(self.K_left, scales[0]), _scaled(self.K_right, scales[1])
             left = undistort_division(matches.left, self.K_left, k[0])
@@ -467,7 +468,7 @@ class _Joint:
             np.sum(np.minimum((errors / noise) ** 2, 9.0)) + np.sum(self.priors.residuals(R, t) ** 2)
             + focal_terms + k_terms
         )  # fmt: skip
-        return _Fit(score, _State(R, t, d, c, k), scales, H, mask)
+        return _Fit(score, _State(R, t, d, c, k), scales, hessian, mask)
 
 
 def _distortion_bounds(K_left, K_right, conf) -> tuple | None:
@@ -532,7 +533,7 @@ def _pose_from_fit(joint: _Joint, best: _Fit, split, k_bounds, focal_sigma_rel) 
     a raw camera (a lens fitted: ``k_bounds``), the principal points, which the camera model puts at the
     image centres."""
     (R, t, _, _, k), scales = best.state, best.scales
-    cov = np.linalg.inv(best.H)
+    cov = np.linalg.inv(best.hessian())
     sigma_common = None
     if joint.common is not None:  # c sits after the rotation (3), the direction (2) and the ratio d
         sigma_common = _with_common_scale_as_read(cov, 6, joint.common)
@@ -710,7 +711,7 @@ class _Fit:
     score: float
     state: _State  # its k in the given K's normalised coordinates
     scales: tuple[float, float]  # log focal scale per camera
-    H: np.ndarray
+    hessian: Callable[[], np.ndarray]  # the whole Gauss–Newton Hessian there (computed when called)
     mask: np.ndarray
 
 
@@ -794,7 +795,6 @@ class _PoseProblem:
         # F = M_rᵀ E M_l with M = K⁻¹ of the scaled K: diag(e⁻ˢ, e⁻ˢ, 1)·K⁻¹ (the principal point stays)
         self.inverse = (np.linalg.inv(K_left), np.linalg.inv(K_right))
         self.undistorted: dict = {}
-        self.hessian: np.ndarray | None = None  # the last normal equations' whole Hessian
 
     def log_scales(self, d: float, c: float) -> tuple[float, float]:
         if self.split is None:
@@ -901,16 +901,22 @@ class _PoseProblem:
         k = self.huber_k
         return float(np.sum(np.where(data <= k, data * data, 2 * k * data - k * k)) + priors @ priors)
 
-    def normal_equations(self, state: _State) -> tuple[np.ndarray, np.ndarray]:
-        """Jᵀ·W·J and Jᵀ·W·r with the Huber weights at ``state``: the Gauss–Newton form of :meth:`cost`,
-        kept whole in ``hessian`` (the covariance's). For the step, a camera's k that sits at a bound with
-        its gradient pointing beyond it is held: its row and column cleared but the diagonal, its gradient 0.
-        A step across the bound would be clipped, and the clipped step is not the one the quadratic model
-        promised (the fit then rejected every other step and crept)."""
+    def _weighted(self, state: _State) -> tuple[np.ndarray, np.ndarray]:
+        """Jᵀ·W·J and Jᵀ·W·r with the Huber weights at ``state``: the Gauss–Newton form of :meth:`cost`."""
         r, J = self.jacobian(state)
         w = self.weights(r)
-        H, g = J.T @ (J * w[:, None]), J.T @ (w * r)
-        self.hessian = H
+        return J.T @ (J * w[:, None]), J.T @ (w * r)
+
+    def hessian(self, state: _State) -> np.ndarray:
+        """The whole Gauss–Newton Hessian at ``state`` (the covariance's: no k held)."""
+        return self._weighted(state)[0]
+
+    def normal_equations(self, state: _State) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_weighted`, for the step: a camera's k that sits at a bound with its gradient pointing
+        beyond it is held, its row and column cleared but the diagonal, its gradient 0. A step across the
+        bound would be clipped, and the clipped step is not the one the quadratic model promised (the fit
+        then rejected every other step and crept)."""
+        H, g = self._weighted(state)
         if self.k_bounds is None:
             return H, g
         H, g = H.copy(), g.copy()
@@ -942,9 +948,10 @@ def _refine_pose(
     ``split`` (a :class:`_Split`): how each camera takes its share of a ratio correction d, and d's prior.
     ``common``: the 1-sigma of the prior 0 on c, which scales both focal lengths by exp(c) (None: c held at
     the state's). ``state.k`` undistorts the matches in the normalised coordinates of the given K_left,
-    K_right; ``k_bounds`` their (lower, upper) limits. Returns the refined state, the Gauss–Newton Hessian
-    there, the two log focal scales and the reweighted cost Σ w·r² with the Huber weights there (in units
-    of the noise and the sigmas; the nested tests of the lens and of equal focal lengths compare it).
+    K_right; ``k_bounds`` their (lower, upper) limits. Returns the refined state, its whole Gauss–Newton
+    Hessian (a function: most fits' is never needed), the two log focal scales and the reweighted cost
+    Σ w·r² with the Huber weights there (in units of the noise and the sigmas; the nested tests of the lens
+    and of equal focal lengths compare it).
     """
     problem = _PoseProblem(left, right, K_left, K_right, noise_px, priors, split, k_bounds, conf, common)
     settings = Settings(
@@ -954,5 +961,4 @@ def _refine_pose(
     fit = levenberg_marquardt(state, problem.cost, problem.normal_equations, problem.moved, settings)
     r = problem.residuals(fit.x)
     scales = problem.log_scales(fit.x.d, fit.x.c)
-    # the loop's last normal equations are at its final point: their whole Hessian, no k held
-    return fit.x, problem.hessian, scales, float(np.sum(problem.weights(r) * r * r))
+    return fit.x, lambda: problem.hessian(fit.x), scales, float(np.sum(problem.weights(r) * r * r))

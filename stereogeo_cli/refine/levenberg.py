@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -57,15 +58,27 @@ class Settings:
 
 @dataclass
 class Result:
-    """Where a fit ended: the parameters, their cost, and H and g there."""
+    """Where a fit ended: the parameters, their cost, and H and g there (``H``, ``gradient``: computed on
+    first use where the fit stopped on a kept step, as most callers need neither)."""
 
     x: Any
     cost: float
-    H: np.ndarray
-    gradient: np.ndarray
     iterations: int  # steps tried, kept or not
     converged: bool
-    history: list[float] = field(default_factory=list)  # the cost at the start and after every kept step
+    history: list[float]  # the cost at the start and after every kept step
+    equations: Callable[[], tuple[np.ndarray, np.ndarray]] = field(repr=False)  # (H, g) at x
+
+    @cached_property
+    def _at_end(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.equations()
+
+    @property
+    def H(self) -> np.ndarray:
+        return self._at_end[0]
+
+    @property
+    def gradient(self) -> np.ndarray:
+        return self._at_end[1]
 
 
 def damped_step(H: np.ndarray, g: np.ndarray, lam: float, damping: np.ndarray | None = None) -> np.ndarray:
@@ -95,13 +108,17 @@ def levenberg_marquardt(
 
     x, current = x0, float(cost(x0))
     H, g, D = equations(x)
+    at_end = (H, g)  # the normal equations at x, where they have been computed there
     n = len(g)
     free = np.ones(n, dtype=bool) if free is None else np.asarray(free, dtype=bool)
+    every = bool(free.all())
     history, lam, iterations, converged = [current], settings.lambda_init, 0, False
     while iterations < settings.max_iterations and free.any():
         iterations += 1
         try:
-            step_free = damped_step(H[np.ix_(free, free)], g[free], lam, None if D is None else D[free])
+            step_free = damped_step(
+                H if every else H[np.ix_(free, free)], g[free], lam, None if D is None else D[free]
+            )
         except np.linalg.LinAlgError:
             break
         step = np.zeros(n)
@@ -114,20 +131,25 @@ def levenberg_marquardt(
             history.append(current)
             lam = max(lam * LAMBDA_DOWN, LAMBDA_FLOOR)
             near = near or (switch is not None and decrease <= switch * (current + decrease))
-            H, g, D = equations(x)
             if (
                 decrease <= settings.relative_tolerance * (current + decrease)
                 or current < 1e-24
                 or np.linalg.norm(step) < settings.step_tolerance
             ):
-                converged = True
+                converged, at_end = True, None
                 break
+            H, g, D = equations(x)
+            at_end = (H, g)
         else:
             lam *= LAMBDA_UP
             if lam > settings.lambda_max:
                 converged = True
                 break
-    return Result(x, current, H, g, iterations, converged, history)
+    end = x
+    return Result(
+        x, current, iterations, converged, history,
+        (lambda: at_end) if at_end is not None else (lambda: equations(end)[:2]),
+    )  # fmt: skip
 
 
 def covariance(bread: np.ndarray, meat: np.ndarray | None = None, free: np.ndarray | None = None):
