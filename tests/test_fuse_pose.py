@@ -630,3 +630,28 @@ def test_a_car_rigs_turned_cameras_are_told_to_give_known_focal_lengths(shared_d
     )
     assert not any("--focal-left" in note for note in given.warnings)
     assert np.degrees(rotation_error(given.pose.R, np.array(record["R"]))) < 3.0
+
+
+def test_mutual_ratio_matches_are_opencvs_brute_force_ratio_test_with_a_cross_check():
+    """The matcher is Lowe's ratio test on the two nearest neighbours (L2) plus a mutual check: the same
+    index pairs as OpenCV's brute-force matcher (k=2 one way, 1-NN the other), here on descriptors with
+    near and far partners, more in one image than in the other."""
+    import cv2
+
+    from stereogeo_cli.fuse.matches import mutual_ratio_matches
+
+    rng = np.random.default_rng(3)
+    b = rng.integers(0, 120, size=(700, 128)).astype(np.float32)
+    # partners of b, some of one b twice (the mutual check keeps one), and descriptors with no partner
+    a = np.concatenate([b[rng.integers(0, 700, 400)], rng.integers(0, 120, size=(100, 128))])
+    a = (a + rng.normal(0, 30, size=a.shape)).astype(np.float32)
+    matcher = cv2.BFMatcher(cv2.NORM_L2)
+    back = {m.queryIdx: m.trainIdx for m in matcher.match(b, a)}
+    expected = sorted(
+        (m.queryIdx, m.trainIdx)
+        for m, n in matcher.knnMatch(a, b, k=2)
+        if m.distance < 0.75 * n.distance and back[m.trainIdx] == m.queryIdx
+    )
+    found = [tuple(pair) for pair in mutual_ratio_matches(a, b, 0.75).tolist()]
+    ratio_only = len(mutual_ratio_matches(a, b, 0.75, mutual=False))
+    assert 200 < len(expected) < ratio_only < 500 and found == expected

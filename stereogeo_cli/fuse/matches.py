@@ -45,12 +45,18 @@ def mutual_ratio_matches(a: np.ndarray, b: np.ndarray, ratio: float, mutual: boo
     a, b = np.asarray(a, dtype=np.float32), np.asarray(b, dtype=np.float32)
     if len(a) < 1 or len(b) < 2:
         return np.zeros((0, 2), dtype=int)
-    d2 = np.einsum("ij,ij->i", a, a)[:, None] + np.einsum("ij,ij->i", b, b)[None, :] - 2.0 * (a @ b.T)
+    d2 = np.einsum("ij,ij->i", a, a)[:, None] + np.einsum("ij,ij->i", b, b)[None, :]
+    products = a @ b.T
+    products *= 2.0
+    d2 -= products  # |a|² + |b|² − 2·a·b, in place: the matrix is the largest array of the matching
+    del products
     np.maximum(d2, 0.0, out=d2)
     rows = np.arange(len(a))
     best = np.argmin(d2, axis=1)
     d_best = d2[rows, best]
-    nearest_in_a = np.argmin(d2, axis=0) if mutual else None
+    # (along rows of the transposed copy: numpy's argmin down the columns of a large matrix is several times
+    # slower than the copy)
+    nearest_in_a = np.argmin(np.ascontiguousarray(d2.T), axis=1) if mutual else None
     # the second nearest: the row's minimum once its nearest is masked (two vectorised passes, a third of
     # the time of a partial sort; where two are equally near, the ratio test fails whichever is taken)
     d2[rows, best] = np.inf
