@@ -320,7 +320,7 @@ def lower_thread_priority(steps: int = 10) -> None:
 
 def network_threads() -> int:
     """The network's threads by default: one per core this process may use, but one. The feature matching
-    and the straight edges' detection run on the pool's threads while ONNX Runtime runs; with a thread
+    and the straight edges' detection run on threads of their own while ONNX Runtime runs; with a thread
     per core ONNX Runtime competes with them for every core (on two cores a warm ``calibrate`` took
     about 0.85× as long with one network thread as with two, measured side by side)."""
     return max(1, usable_cores() - 1)
