@@ -133,16 +133,15 @@ class RelativePose:
 
 
 def _normalise(points: np.ndarray, K: np.ndarray) -> np.ndarray:
-    homogeneous = np.column_stack([points, np.ones(len(points))])
-    out = homogeneous @ np.linalg.inv(K).T
+    out = _homogeneous(points) @ np.linalg.inv(K).T
     return out[:, :2] / out[:, 2:]
 
 
 def ray_angles(normalised_left: np.ndarray, normalised_right: np.ndarray, R: np.ndarray) -> np.ndarray:
     """The angle (radians) [N] between each match's two rays, given as normalised image points [N x 2] of
     each camera, with ``X_right = R @ X_left + T``."""
-    ray_l = np.column_stack([normalised_left, np.ones(len(normalised_left))])
-    ray_r = np.column_stack([normalised_right, np.ones(len(normalised_right))]) @ R  # Rᵀ·ray, left frame
+    ray_l = _homogeneous(normalised_left)
+    ray_r = _homogeneous(normalised_right) @ R  # Rᵀ·ray, left frame
     cos = np.sum(ray_l * ray_r, axis=1) / np.linalg.norm(ray_l, axis=1) / np.linalg.norm(ray_r, axis=1)
     return np.arccos(np.clip(cos, -1.0, 1.0))
 

@@ -48,13 +48,17 @@ def tangent_basis(gravity: np.ndarray) -> np.ndarray:
 
 
 def retract_on_sphere(gravity: np.ndarray, delta: np.ndarray, basis: np.ndarray | None = None) -> np.ndarray:
-    """Move a unit vector [3] along the sphere by the tangent step ``delta`` [2] (exponential map)."""
-    B = tangent_basis(gravity) if basis is None else basis
-    step = B @ np.asarray(delta, dtype=float)
-    angle = math.sqrt(float(step @ step))
+    """Move a unit vector [3] along the sphere by the tangent step ``delta`` [2] (exponential map; in plain
+    floats, as :func:`tangent_basis`)."""
+    (b00, b01), (b10, b11), (b20, b21) = (tangent_basis(gravity) if basis is None else basis).tolist()
+    d1, d2 = np.asarray(delta, dtype=float).tolist()
+    step = (b00 * d1 + b01 * d2, b10 * d1 + b11 * d2, b20 * d1 + b21 * d2)
+    angle = math.sqrt(step[0] * step[0] + step[1] * step[1] + step[2] * step[2])
     if angle < 1e-15:
         return np.asarray(gravity, dtype=float).copy()
-    return math.cos(angle) * gravity + (math.sin(angle) / angle) * step
+    c, s = math.cos(angle), math.sin(angle) / angle
+    gx, gy, gz = np.asarray(gravity, dtype=float).tolist()
+    return np.array([c * gx + s * step[0], c * gy + s * step[1], c * gz + s * step[2]])
 
 
 def gravity_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
