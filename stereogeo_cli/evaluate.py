@@ -146,14 +146,36 @@ def pair_errors(result, record: dict) -> dict:
     return row
 
 
-def sigma_coverage(z: np.ndarray) -> dict[str, float]:
+def sigma_coverage(z: np.ndarray, weights: np.ndarray | None = None) -> dict[str, float]:
     """How honest reported sigmas are, from the errors in sigmas ``z``: honest ones hold 68 % of the errors
-    within 1 sigma and 99.7 % within 3; the 68th percentile of ``z`` is the factor that would make them so."""
+    within 1 sigma and 99.7 % within 3; the 68th percentile of ``z`` is the factor that would make them so.
+    With ``weights``, weighted shares and a weighted percentile (:func:`weighted_quantile`)."""
+    if weights is None:
+        return {
+            "within_1_sigma": float(np.mean(z <= 1)),
+            "within_3_sigma": float(np.mean(z <= 3)),
+            "scale_for_68": float(np.percentile(z, 68.27)),
+        }
     return {
-        "within_1_sigma": float(np.mean(z <= 1)),
-        "within_3_sigma": float(np.mean(z <= 3)),
-        "scale_for_68": float(np.percentile(z, 68.27)),
+        "within_1_sigma": float(np.average(z <= 1, weights=weights)),
+        "within_3_sigma": float(np.average(z <= 3, weights=weights)),
+        "scale_for_68": weighted_quantile(z, weights, 0.6827),
     }
+
+
+def weighted_quantile(values: np.ndarray, weights: np.ndarray, q: float) -> float | None:
+    """The ``q`` quantile of ``values`` with ``weights``: the smallest value whose share of the total weight
+    with all smaller ones reaches ``q``, or where it reaches ``q`` exactly, the mean of that value and the
+    next (equal weights and q = 0.5: ``np.median``). None for no values."""
+    values, weights = np.asarray(values, dtype=float), np.asarray(weights, dtype=float)
+    if values.size == 0:
+        return None
+    order = np.argsort(values, kind="stable")
+    v, share = values[order], np.cumsum(weights[order]) / weights.sum()
+    i = min(int(np.searchsorted(share, q - 1e-12)), len(v) - 1)
+    if abs(share[i] - q) < 1e-12 and i + 1 < len(v):
+        return float(0.5 * (v[i] + v[i + 1]))
+    return float(v[i])
 
 
 def evaluate_dataset(folder: str | Path, calibrator, *, baselines: bool = False, progress=None) -> dict:
