@@ -5,8 +5,6 @@ These tests need EGL (Mesa llvmpipe). CI installs it, so they fail rather than s
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
@@ -19,7 +17,6 @@ from stereogeo_cli.synth.sample import get_renderer, sample_pair
 from stereogeo_cli.synth.scenes import Lighting, MeshBuilder, Scene, build_scene
 from stereogeo_cli.synth.textures import read_rgb
 
-PANORAMAS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "panoramas"
 CONFIG = SynthConfig(depth=True, augment=0.0, texture_size=128, texture_layers=24)
 
 
@@ -171,15 +168,15 @@ def test_outdoor_horizon_lies_on_the_rendered_horizon(renderer):
         assert color.shape == (h, w, 3)
 
 
-@pytest.mark.skipif(not PANORAMAS.is_dir(), reason="../shared/data/panoramas is not available")
-def test_panorama_crops_have_exact_roll_pitch_and_fov():
-    config = CONFIG.replace(panoramas=PANORAMAS.resolve(), panorama_share=1.0)
+def test_panorama_crops_have_exact_roll_pitch_and_fov(shared_data):
+    panoramas = shared_data / "panoramas"
+    config = CONFIG.replace(panoramas=panoramas.resolve(), panorama_share=1.0)
     renderer = get_renderer(7, config)
     for index in range(3):
         sample = sample_pair(7, index, config, renderer)
         c = sample.calib
         assert c["kind"] == "panorama" and c["T"] == [0.0, 0.0, 0.0]
-        pano = read_rgb(PANORAMAS / f"{c['scene']}.jpg").astype(np.float32)
+        pano = read_rgb(panoramas / f"{c['scene']}.jpg").astype(np.float32)
         for side, image in (("left", sample.left), ("right", sample.right)):
             cam = c[side]
             K, g = np.array(cam["K"]), np.array(cam["gravity_up"])
