@@ -8,6 +8,8 @@ EXIT_INTERNAL = 1
 EXIT_BAD_INPUT = 2
 EXIT_CALIBRATION_FAILED = 3
 EXIT_PARTIAL_BATCH = 4
+EXIT_INTERRUPTED = 130  # stopped by SIGINT (Ctrl-C): 128 + 2; what was done is kept
+EXIT_TERMINATED = 143  # stopped by SIGTERM (e.g. a job's time limit): 128 + 15
 
 
 class StereoGeoError(Exception):

@@ -1,9 +1,16 @@
-"""``stereogeo batch-calibrate``: pair discovery, sharding, bad pairs, summaries, workers and --same-rig."""
+"""``stereogeo batch-calibrate``: pair discovery, sharding, bad pairs, summaries, workers, --same-rig, and
+stopping on SIGINT / SIGTERM with --resume."""
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -20,6 +27,8 @@ from stereogeo_cli.batch import (
     pool_matches,
     select_shard,
 )
+from stereogeo_cli.batch.interrupt import Interrupted, Stop, interruptible, protected
+from stereogeo_cli.batch.resume import EVIDENCE, MARKER, evidence_bytes, existing_results, read_evidence
 from stereogeo_cli.errors import StereoGeoError
 from stereogeo_cli.fuse import Matches, fuse_relative_pose
 from stereogeo_cli.geometry import intrinsic_matrix, rotation_error, rotation_from_axis_angle
@@ -151,7 +160,12 @@ def test_bad_pairs_are_reported_and_the_rest_written(small_images, onnx_model, t
     assert any("c_left.png has no right image" in f for f in failures)
     assert any("d_left.png" in f for f in failures) and any("blank" in f for f in failures)
     for name in ("a", "b"):
-        assert sorted(p.name for p in (out / name).iterdir()) == ["left.yaml", "report.json", "right.yaml"]
+        assert sorted(p.name for p in (out / name).iterdir()) == [
+            MARKER,
+            "left.yaml",
+            "report.json",
+            "right.yaml",
+        ]
     assert not (out / "c").exists() and not (out / "d").exists()
     rows = read_csv(out / "summary.csv")
     assert [(r["name"], r["status"]) for r in rows] == [
@@ -159,7 +173,8 @@ def test_bad_pairs_are_reported_and_the_rest_written(small_images, onnx_model, t
     ]  # fmt: skip
     assert float(rows[0]["left_focal_px"]) > 0 and rows[0]["error"] == "" and "blank" in rows[4]["error"]
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["counts"] == {"pairs": 5, "ok": 2, "failed": 3}
+    assert summary["counts"] == {"pairs": 5, "ok": 2, "failed": 3, "not_run": 0}
+    assert summary["interrupted"] is None and summary["resumed"] == 0
     assert summary["medians"]["left_focal_px"] == pytest.approx(float(rows[0]["left_focal_px"]))
     assert summary["pairs"][0]["report"]["left"]["K"] and summary["pairs"][2]["report"] is None
 
@@ -174,7 +189,7 @@ def test_all_pairs_ok_json_on_stdout(small_images, onnx_model, tmp_path):
     result = invoke("batch-calibrate", folder, "-o", out, "--model", onnx_model, "--json")
     assert result.exit_code == 0, result.output
     summary = json.loads(result.stdout)
-    assert summary["counts"] == {"pairs": 2, "ok": 2, "failed": 0}
+    assert summary["counts"] == {"pairs": 2, "ok": 2, "failed": 0, "not_run": 0}
     assert summary == json.loads((out / "summary.json").read_text())
     assert (out / "x1" / "intrinsics.yml").is_file() and (out / "x2" / "report.json").is_file()
 
@@ -461,3 +476,269 @@ def test_same_rig_reports_the_focal_sigma_widened_as_single_pairs_do(
     bias = calibrator.conf["camera_bias_sigma"]
     own = {name: (s**2 - bias**2) ** 0.5 for name, s in sigmas.items()}
     assert own["wide"] == pytest.approx(own["plain"] * 3.0 / base, rel=1e-6)
+
+
+# --------------------------------------------------------------------------- stopping (SIGINT, SIGTERM)
+def wait_until(condition, timeout: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.01)
+
+
+def test_first_signal_asks_to_stop_a_second_stops_at_once_and_handlers_come_back():
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    with interruptible() as stop:
+        assert not stop.requested and stop.exit_code is None and stop.name is None
+        os.kill(os.getpid(), signal.SIGTERM)  # a cluster's time limit: recorded, nothing raised
+        wait_until(lambda: stop.requested)
+        assert (stop.name, stop.exit_code) == ("SIGTERM", 143)
+        with pytest.raises(Interrupted):  # a second signal: at once
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5)
+        finished = []
+        with pytest.raises(Interrupted):  # ...but not inside protected(): at its end
+            with protected():
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.05)
+                finished.append(True)
+        assert finished and stop.count == 3 and stop.exit_code == 143  # the first signal's code
+        with interruptible() as inner:
+            assert inner is stop
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+    asked = Stop()
+    asked.request()
+    assert asked.requested and asked.exit_code == 130 and asked.name == "SIGINT"
+
+
+def test_same_rig_evidence_is_kept_exactly():
+    from stereogeo_cli.batch import RigEvidence
+
+    rng = np.random.default_rng(1)
+    ev = RigEvidence(
+        (640, 480), (320, 240), (500.123456789, 510.5), (12.25, float("inf")), rng.normal(size=3),
+        rng.normal(size=3), rotation_from_axis_angle(rng.normal(size=3)), rng.normal(size=3), "matches",
+        0.1234567, rng.normal(size=(7, 2)) * 100, rng.normal(size=(7, 2)) * 100, distortion=(-0.1, 0.0),
+        focal_prior=((600.0, 30.5), None),
+    )  # fmt: skip
+    back = read_evidence(evidence_bytes(ev))
+    for name, value in vars(ev).items():
+        kept = getattr(back, name)
+        if isinstance(value, np.ndarray):
+            assert kept.dtype == np.float64 and np.array_equal(kept, value), name
+        else:
+            assert kept == value and type(kept) is type(value), name
+    assert isinstance(back.size_left[0], int) and back.focal_prior[1] is None
+
+
+def test_existing_results_are_the_pairs_own(tmp_path):
+    touch(tmp_path, "a/report.json", "summary-shard-2-of-2.csv", "rig/report.json")
+    (tmp_path / "b").mkdir()  # an empty folder holds nothing
+    assert existing_results(tmp_path, ["b", "c"], "summary-shard-1-of-2", None) == []
+    found = existing_results(tmp_path, ["a", "b"], "summary-shard-2-of-2", "rig")
+    assert [p.name for p in found] == ["a", "rig", "summary-shard-2-of-2.csv"]
+
+
+def test_output_folder_with_results_needs_resume_or_overwrite(small_images, onnx_model, tmp_path):
+    folder = pair_folder(tmp_path / "in", small_images, ("a", "b"))
+    out = tmp_path / "out"
+    touch(out, "a/report.json")
+    base = ("batch-calibrate", folder, "-o", out, "--model", onnx_model)
+    assert_error(invoke(*base), 2, str(out), "--resume", "--overwrite")
+    assert_error(invoke(*base, "--resume", "--overwrite"), 2, "--resume", "--overwrite")
+    assert (out / "a" / "report.json").read_bytes() == b"" and not (out / "summary.csv").exists()
+
+
+def test_an_empty_shard_writes_an_empty_summary(small_images, onnx_model, tmp_path):
+    folder = pair_folder(tmp_path / "in", small_images, ("a", "b"))
+    result = invoke(
+        "batch-calibrate", folder, "-o", tmp_path / "out", "--model", onnx_model, "--shard", "3/3"
+    )
+    assert result.exit_code == 0, result.output
+    assert read_csv(tmp_path / "out" / "summary-shard-3-of-3.csv") == []
+
+
+def test_a_stop_before_the_first_pair_lists_every_pair_as_not_run(small_images, onnx_model, tmp_path):
+    from stereogeo_cli.batch import run_batch
+
+    folder = pair_folder(tmp_path / "in", small_images, ("a", "b"))
+    (folder / "c_left.png").write_bytes(b"")  # unmatched: failed, as always
+    stop = Stop()
+    stop.request(signal.SIGTERM)
+    summary = run_batch(folder, tmp_path / "out", model=onnx_model, same_rig=True, stop=stop)
+    assert summary.interrupted == "SIGTERM" and (summary.not_run, summary.failed) == (2, 1)
+    saved = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert saved["counts"] == {"pairs": 3, "ok": 0, "failed": 1, "not_run": 2}
+    assert saved["interrupted"] == "SIGTERM" and saved["rig"]["error"] == "not run: interrupted by SIGTERM"
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["summary.csv", "summary.json"]
+
+
+@pytest.mark.slow
+def test_resume_calibrates_again_what_does_not_match(small_images, onnx_model, tmp_path):
+    folder = pair_folder(tmp_path / "in", small_images, ("a", "b", "c"))
+    out = tmp_path / "out"
+    base = ("batch-calibrate", folder, "-o", out, "--model", onnx_model)
+    assert invoke(*base, "--format", "json,ros").exit_code == 0
+    kept = {p.name: p.stat().st_mtime_ns for p in (out / "c").iterdir()}
+    (out / "a" / "left.yaml").unlink()  # a file missing
+    cv2.imwrite(str(folder / "b_right.png"), cv2.GaussianBlur(small_images[1], (3, 3), 0))  # another image
+    result = invoke(*base, "--format", "json,ros", "--resume")
+    assert result.exit_code == 0, result.output
+    assert "resuming: 1 of 3 pairs" in result.stderr and "(1 kept from before)" in result.stdout
+    assert json.loads((out / "summary.json").read_text())["resumed"] == 1
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "c").iterdir()} == kept
+    assert (out / "a" / "left.yaml").is_file()
+    # other options: every pair again; the formats no longer asked for are removed
+    result = invoke(*base, "--format", "json", "--resume", "--no-lines")
+    assert result.exit_code == 0 and "resuming: 0 of 3 pairs" in result.stderr, result.output
+    for name in "abc":
+        assert sorted(p.name for p in (out / name).iterdir()) == [MARKER, "report.json"]
+        assert json.loads((out / name / MARKER).read_text())["options"]["lines"] is False
+
+
+# The real command in a subprocess, stopped as a terminal's Ctrl-C or a cluster's time limit stops it: the
+# signal goes to every process of the command (its process group), workers included.
+PAIRS = 6
+
+
+@pytest.fixture(scope="module")
+def many_pairs(small_images, tmp_path_factory) -> Path:
+    return pair_folder(tmp_path_factory.mktemp("many"), small_images, [f"p{i}" for i in range(PAIRS)])
+
+
+def batch_command(*args) -> list[str]:
+    return [sys.executable, "-m", "stereogeo_cli", "batch-calibrate", *(str(a) for a in args)]
+
+
+@pytest.fixture(scope="module")
+def reference(many_pairs, onnx_model, tmp_path_factory) -> dict:
+    """An uninterrupted --same-rig run over the pairs: its summary.json."""
+    out = tmp_path_factory.mktemp("reference") / "out"
+    run = subprocess.run(batch_command(many_pairs, "-o", out, "--model", onnx_model, "--same-rig", "--json"),
+                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    return json.loads(run.stdout)
+
+
+def stopped_run(args, out: Path, first: int, second_after: float | None = None, timeout: float = 180):
+    """Run the batch until its first pair is written, send ``first`` (and SIGINT ``second_after`` seconds
+    later); return (exit code, stdout, stderr, seconds from the last signal to the exit)."""
+    proc = subprocess.Popen(batch_command(*args, "-o", out), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + timeout
+        while not list(out.glob(f"*/{MARKER}")):
+            assert proc.poll() is None, f"the batch ended before a pair was written: {proc.communicate()}"
+            assert time.monotonic() < deadline, "no pair written in time"
+            time.sleep(0.02)
+        os.killpg(proc.pid, first)
+        if second_after is not None:
+            time.sleep(second_after)
+            os.killpg(proc.pid, signal.SIGINT)
+        sent = time.monotonic()
+        stdout, stderr = proc.communicate(timeout=timeout)
+        return proc.returncode, stdout, stderr, time.monotonic() - sent
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+
+
+def complete_folders(out: Path) -> set[str]:
+    """The pair folders of ``out`` whose marker lists files that are all there as written; no folder and
+    no file is left half written (no temporary file anywhere)."""
+    assert not [p for p in out.rglob("*.tmp")]
+    complete = set()
+    for folder in (p for p in out.iterdir() if p.is_dir() and p.name != "rig"):
+        marker = json.loads((folder / MARKER).read_text())
+        for name, digest in marker["files"].items():
+            assert hashlib.sha256((folder / name).read_bytes()).hexdigest() == digest, (folder, name)
+        complete.add(folder.name)
+    return complete
+
+
+def without_timing(report: dict) -> dict:
+    return {k: v for k, v in report.items() if k != "timing_ms"}
+
+
+def check_stopped(out: Path, stderr: str, signal_name: str) -> list[dict]:
+    """The summary of a stopped batch: some pairs ok, the others "not run", each ok pair's folder
+    complete; one line on stderr says how far it got and how to go on. Returns the csv rows."""
+    assert "Traceback" not in stderr, stderr
+    lines = [line for line in stderr.splitlines() if line.startswith(f"interrupted by {signal_name}: ")]
+    assert len(lines) == 1, stderr
+    rows = read_csv(out / "summary.csv")
+    ok = [r["name"] for r in rows if r["status"] == "ok"]
+    assert 1 <= len(ok) < PAIRS, rows
+    assert all(r["status"] == "not run" and r["left_focal_px"] == "" for r in rows if r["name"] not in ok)
+    assert f"{len(ok)} of {PAIRS} pairs done" in lines[0] and "--resume" in lines[0]
+    assert complete_folders(out) == set(ok)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] == signal_name
+    assert summary["counts"] == {"pairs": PAIRS, "ok": len(ok), "failed": 0, "not_run": PAIRS - len(ok)}
+    return rows
+
+
+@pytest.mark.slow
+def test_ctrl_c_keeps_the_pairs_done_and_resume_does_the_rest(many_pairs, onnx_model, reference, tmp_path):
+    out = tmp_path / "out"
+    code, _, stderr, _ = stopped_run((many_pairs, "--model", onnx_model), out, signal.SIGINT)
+    assert code == 130, stderr
+    rows = check_stopped(out, stderr, "SIGINT")
+    done = {r["name"]: r for r in rows if r["status"] == "ok"}
+    written = {p: p.stat().st_mtime_ns for name in done for p in (out / name).iterdir()}
+    again = subprocess.run(batch_command(many_pairs, "-o", out, "--model", onnx_model), capture_output=True,
+                           text=True, timeout=120)  # fmt: skip
+    assert again.returncode == 2 and again.stderr.count("\n") == 1 and "--resume" in again.stderr
+    resumed = subprocess.run(batch_command(many_pairs, "-o", out, "--model", onnx_model, "--resume"),
+                             capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr
+    rows = read_csv(out / "summary.csv")
+    assert [r["status"] for r in rows] == ["ok"] * PAIRS
+    assert [r for r in rows if r["name"] in done] == list(done.values())  # as when they were calibrated
+    assert {p: p.stat().st_mtime_ns for p in written} == written  # taken, not written again
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["resumed"] == len(done) and summary["interrupted"] is None
+    assert [without_timing(p["report"]) for p in summary["pairs"]] == [
+        without_timing(p["report"]) for p in reference["pairs"]
+    ]
+    assert complete_folders(out) == {f"p{i}" for i in range(PAIRS)}
+
+
+@pytest.mark.slow
+def test_sigterm_with_workers_and_same_rig_then_resume(many_pairs, onnx_model, reference, tmp_path):
+    out = tmp_path / "out"
+    args = (many_pairs, "--model", onnx_model, "--workers", "2", "--same-rig")
+    code, stdout, stderr, _ = stopped_run(args, out, signal.SIGTERM)
+    assert code == 143, stderr
+    check_stopped(out, stderr, "SIGTERM")
+    assert "the other" in stderr and not (out / "rig").exists()
+    assert json.loads((out / "summary.json").read_text())["rig"] == {
+        "folder": None, "error": "not run: interrupted by SIGTERM",
+    }  # fmt: skip
+    assert all((out / name / EVIDENCE).is_file() for name in complete_folders(out))
+    resumed = subprocess.run(batch_command(*args, "-o", out, "--resume", "--json"), capture_output=True,
+                             text=True, timeout=300)  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr
+    summary = json.loads(resumed.stdout)
+    assert summary["counts"]["ok"] == PAIRS and summary["resumed"] >= 1
+    # the joint calibration from kept and new pairs alike is the uninterrupted run's
+    assert without_timing(summary["rig"]["report"]) == without_timing(reference["rig"]["report"])
+    assert without_timing(json.loads((out / "rig" / "report.json").read_text())) == without_timing(
+        reference["rig"]["report"]
+    )
+
+
+@pytest.mark.slow
+def test_a_second_ctrl_c_stops_the_workers_at_once(many_pairs, onnx_model, tmp_path):
+    out = tmp_path / "out"
+    args = (many_pairs, "--model", onnx_model, "--workers", "2")
+    code, _, stderr, seconds = stopped_run(args, out, signal.SIGINT, second_after=0.1)
+    assert code == 130 and "Traceback" not in stderr, stderr
+    assert seconds < 10, seconds
+    rows = read_csv(out / "summary.csv")
+    ok = {r["name"] for r in rows if r["status"] == "ok"}
+    assert ok and {r["status"] for r in rows} <= {"ok", "not run"}
+    # every file is whole; the pair a killed worker was writing (if any) has no marker: not done
+    assert not list(out.rglob("*.tmp"))
+    assert {p.parent.name for p in out.glob(f"*/{MARKER}")} == ok

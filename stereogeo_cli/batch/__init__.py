@@ -3,6 +3,8 @@
 - :mod:`~stereogeo_cli.batch.discovery`: which files form the pairs, and the shards of a job array.
 - :mod:`~stereogeo_cli.batch.run`: the pairs in worker processes, progress, per-pair results, summaries.
 - :mod:`~stereogeo_cli.batch.same_rig`: ``--same-rig``, one calibration of a rig from all its pairs.
+- :mod:`~stereogeo_cli.batch.interrupt`: stopping cleanly on SIGINT / SIGTERM (for any long command).
+- :mod:`~stereogeo_cli.batch.resume`: what a pair's folder records, so that ``--resume`` can keep it.
 """
 
 from stereogeo_cli.batch.discovery import (

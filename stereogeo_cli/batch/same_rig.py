@@ -242,7 +242,9 @@ def _with_exif_prior(fields: FocalEstimate, priors: list[tuple[float, float]]) -
     return replace(fields, focal_px=focal, sigma_px=sigma)
 
 
-def same_rig_calibration(outcomes, job: PairJob, workers, calibrator, bar: _Progress, baseline_m):
+def same_rig_calibration(outcomes, job: PairJob, workers, calibrator, bar: _Progress, baseline_m, stop=None):
+    """The joint calibration of pass-1 ``outcomes`` (module docstring); None if ``stop`` (a
+    :class:`~stereogeo_cli.batch.interrupt.Stop`) is requested before it is done."""
     start = time.perf_counter()
     ok = [o for o in outcomes if o.status == "ok"]
     if not ok:
@@ -260,9 +262,13 @@ def same_rig_calibration(outcomes, job: PairJob, workers, calibrator, bar: _Prog
         focal_left=focals[0].focal_px, focal_right=focals[1].focal_px, keep_evidence=True,
         pinhole=job.pinhole, lines=job.lines, exif=job.exif,
     )  # fmt: skip
+    if stop is not None and stop.requested:
+        return None
     bar.stage("same rig", len(ok))
     entries = [PairEntry(o.name, o.left, o.right) for o in ok]
-    second = _run_pass(entries, second_job, workers, calibrator, bar)
+    second = _run_pass(entries, second_job, workers, calibrator, bar, stop)
+    if stop is not None and stop.requested:  # the pass stopped, or may have: the joint fit needs it whole
+        return None
     model_info = (ok[0].report or {}).get("model") or {}
     model_id = (model_info.get("file"), model_info.get("sha256"))
     # the rig's focal lengths are reported as a single pair's are: widened for photographs and by the

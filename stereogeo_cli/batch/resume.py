@@ -1,0 +1,218 @@
+"""What a pair's output folder records of how it was made, so that ``--resume`` can take it as it is.
+
+After a pair's calibration files, ``batch-calibrate`` writes :data:`MARKER` (``.stereogeo-pair.json``) into
+its folder, atomically and last: the options that change the results (:func:`pair_options`: stereogeo's
+version, the model's file name and SHA-256, ``--baseline``, ``--pinhole``, ``--no-lines``, ``--no-exif``),
+the formats written, each file's SHA-256, the two input images' names and SHA-256, the pair's JSON report
+and its time. With ``--same-rig`` the evidence the joint pass needs (focal lengths, gravity, pose,
+matches) is kept beside it in :data:`EVIDENCE` (``.stereogeo-evidence.npz``). A folder is a complete
+calibration for a run (:func:`completed_pair`) when its marker is there, records the same options and
+input images, covers the run's formats, and every file it lists is there with its SHA-256; otherwise the
+pair is calibrated again. docs/batch.md, "Interrupting and resuming".
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stereogeo_cli import __version__
+
+MARKER = ".stereogeo-pair.json"
+EVIDENCE = ".stereogeo-evidence.npz"
+MARKER_VERSION = 1
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    """SHA-256 of a file (hex)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def model_identity(model: str | os.PathLike | None) -> dict[str, str | None]:
+    """The report's ``model`` block of the model a run uses: its file name and SHA-256 (None if unreadable:
+    the run itself reports why)."""
+    from stereogeo_cli.network.runtime import default_model_path
+
+    path = Path(model) if model is not None else default_model_path()
+    try:
+        digest = sha256_file(path)
+    except OSError:
+        digest = None
+    return {"file": path.name, "sha256": digest}
+
+
+def pair_options(model: dict, baseline_m: float | None, pinhole: bool, lines: bool, exif: bool) -> dict:
+    """The options a pair's results depend on, as its marker records them (``model``: the report's block)."""
+    return {
+        "stereogeo": __version__,
+        "model": {"file": model.get("file"), "sha256": model.get("sha256")},
+        "baseline_m": None if baseline_m is None else float(baseline_m),
+        "pinhole": bool(pinhole),
+        "lines": bool(lines),
+        "exif": bool(exif),
+    }
+
+
+def _inputs(left: Path, right: Path) -> dict[str, dict[str, str]]:
+    return {
+        side: {"name": path.name, "sha256": sha256_file(path)}
+        for side, path in (("left", left), ("right", right))
+    }
+
+
+def marker_files(folder: Path) -> set[str]:
+    """The files an existing marker in ``folder`` lists (none if there is no readable one)."""
+    try:
+        files = json.loads((folder / MARKER).read_text(encoding="utf-8")).get("files") or {}
+        return {
+            name
+            for name in files
+            if isinstance(name, str) and "/" not in name and name not in ("", ".", "..")
+        }
+    except (OSError, ValueError, AttributeError):
+        return set()
+
+
+def write_pair_files(folder: Path, calibration, formats, evidence, inputs: tuple[Path, Path], options: dict,
+                     report: dict, started: float) -> float:  # fmt: skip
+    """Write a pair's calibration files (and ``evidence``, a RigEvidence or None), then its marker; return
+    the pair's time in ms (from ``started``, a ``time.perf_counter()``) as the marker records it.
+
+    An earlier marker goes first (a folder half rewritten is never taken as complete), and the files it
+    listed that this run does not write again are removed after the new marker is in place.
+    """
+    import time
+
+    from stereogeo_cli.io import write_calibration
+    from stereogeo_cli.io.atomic import write_files_atomically
+
+    earlier = marker_files(folder)
+    try:
+        (folder / MARKER).unlink(missing_ok=True)
+    except OSError:
+        pass  # not a folder, or not writable: write_calibration says so
+    written = write_calibration(folder, calibration, formats)
+    if evidence is not None:
+        written += write_files_atomically(folder, {EVIDENCE: evidence_bytes(evidence)})
+    time_ms = (time.perf_counter() - started) * 1e3
+    marker = {
+        "marker": MARKER_VERSION,
+        "options": options,
+        "formats": list(dict.fromkeys(formats)),
+        "inputs": _inputs(*inputs),
+        "files": {path.name: sha256_file(path) for path in written},
+        "time_ms": time_ms,
+        "report": report,
+    }
+    write_files_atomically(folder, {MARKER: json.dumps(marker, indent=1, allow_nan=False) + "\n"})
+    for name in earlier - set(marker["files"]) - {MARKER}:
+        (folder / name).unlink(missing_ok=True)
+    return time_ms
+
+
+def completed_pair(
+    folder: Path, inputs: tuple[Path, Path], options: dict, formats, evidence: bool
+) -> tuple[dict[str, Any], float, Any] | None:
+    """``(report, time_ms, evidence or None)`` of a pair folder that holds a complete calibration made with
+    ``options`` from these input images, in (at least) ``formats`` and, if ``evidence``, with the
+    ``--same-rig`` evidence; None if it does not (the pair is to be calibrated again)."""
+    try:
+        marker = json.loads((folder / MARKER).read_text(encoding="utf-8"))
+        if marker.get("marker") != MARKER_VERSION or marker.get("options") != options:
+            return None
+        if not set(formats) <= set(marker["formats"]) or (evidence and EVIDENCE not in marker["files"]):
+            return None
+        for name, digest in marker["files"].items():
+            if "/" in name or sha256_file(folder / name) != digest:
+                return None
+        if marker["inputs"] != _inputs(*inputs):
+            return None
+        report, time_ms = marker["report"], float(marker["time_ms"])
+        if not isinstance(report, dict):
+            return None
+        kept = read_evidence((folder / EVIDENCE).read_bytes()) if evidence else None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    return report, time_ms, kept
+
+
+def existing_results(out_dir: Path, names, summary_stem: str, rig_folder: str | None) -> list[Path]:
+    """What ``out_dir`` already holds that a run would write: the non-empty folders of the pairs ``names``,
+    the summary files ``summary_stem``.csv/.json, and the non-empty ``rig_folder``."""
+    found = []
+    folders = [out_dir / name for name in names] + ([out_dir / rig_folder] if rig_folder else [])
+    for folder in folders:
+        try:
+            if folder.is_dir() and any(folder.iterdir()):
+                found.append(folder)
+        except OSError:
+            found.append(folder)
+    found += [p for p in (out_dir / f"{summary_stem}.csv", out_dir / f"{summary_stem}.json") if p.exists()]
+    return found
+
+
+# ---------------------------------------------------------------------------------- --same-rig evidence
+
+
+def evidence_bytes(ev) -> bytes:
+    """A RigEvidence as an .npz file's bytes (exact: every number as float64 or int64)."""
+    priors = np.array([p if p is not None else (np.nan, np.nan) for p in ev.focal_prior], dtype=float)
+    arrays = {
+        "size_left": np.array(ev.size_left, dtype=np.int64),
+        "size_right": np.array(ev.size_right, dtype=np.int64),
+        "focal": np.array(ev.focal, dtype=float),
+        "focal_sigma": np.array(ev.focal_sigma, dtype=float),
+        "gravity_left": np.asarray(ev.gravity_left, dtype=float),
+        "gravity_right": np.asarray(ev.gravity_right, dtype=float),
+        "R": np.asarray(ev.R, dtype=float),
+        "t_direction": np.asarray(ev.t_direction, dtype=float),
+        "pose_source": np.array(ev.pose_source),
+        "baseline_m": np.array(ev.baseline_m, dtype=float),
+        "matches_left": np.asarray(ev.matches_left, dtype=float),
+        "matches_right": np.asarray(ev.matches_right, dtype=float),
+        "distortion": np.array(ev.distortion, dtype=float),
+        "focal_prior": priors,
+        "has_prior": np.array([p is not None for p in ev.focal_prior]),
+    }
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    return buffer.getvalue()
+
+
+def read_evidence(data: bytes):
+    """The RigEvidence of :func:`evidence_bytes`."""
+    from stereogeo_cli.batch.run import RigEvidence
+
+    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+        a = {key: z[key] for key in z.files}
+
+    def pair(values, kind=float):
+        return tuple(kind(v) for v in values)
+
+    priors = tuple(pair(p) if has else None for p, has in zip(a["focal_prior"], a["has_prior"], strict=True))
+    return RigEvidence(
+        size_left=pair(a["size_left"], int),
+        size_right=pair(a["size_right"], int),
+        focal=pair(a["focal"]),
+        focal_sigma=pair(a["focal_sigma"]),
+        gravity_left=a["gravity_left"],
+        gravity_right=a["gravity_right"],
+        R=a["R"],
+        t_direction=a["t_direction"],
+        pose_source=str(a["pose_source"]),
+        baseline_m=float(a["baseline_m"]),
+        matches_left=a["matches_left"],
+        matches_right=a["matches_right"],
+        distortion=pair(a["distortion"]),
+        focal_prior=priors,
+    )
