@@ -35,7 +35,8 @@ def write_files_atomically(out_dir: str | os.PathLike, files: dict[str, str | by
     try:
         for name, text in files.items():
             target = folder / name
-            fd, tmp_name = tempfile.mkstemp(dir=folder, prefix=f".{name}.", suffix=".tmp")
+            target.parent.mkdir(parents=True, exist_ok=True)  # a name may hold subfolders ("sparse/0/…")
+            fd, tmp_name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
             pending.append((Path(tmp_name), target))
             binary = isinstance(text, bytes)
             with os.fdopen(
@@ -48,7 +49,8 @@ def write_files_atomically(out_dir: str | os.PathLike, files: dict[str, str | by
                 os.fsync(f.fileno())
         for tmp, target in pending:
             os.replace(tmp, target)
-        _fsync_folder(folder)
+        for parent in dict.fromkeys(target.parent for _, target in pending):
+            _fsync_folder(parent)
     except OSError as exc:
         for tmp, _ in pending:
             tmp.unlink(missing_ok=True)

@@ -47,6 +47,14 @@ def write_calibration(
     Raises :class:`StereoGeoError` (exit code 2) for an unknown format or an output folder that cannot be
     made or written.
     """
+    return write_files_atomically(out_dir, render_calibration(calibration, formats, alpha=alpha))
+
+
+def render_calibration(
+    calibration: StereoCalibration, formats: Sequence[str] = DEFAULT_FORMATS, *, alpha: float = 0.0
+) -> dict[str, str]:
+    """The files of :func:`write_calibration` as ``{file name: text}``, written nowhere (for a caller that
+    writes them together with files of its own)."""
     if isinstance(formats, str):
         formats = (formats,)
     unknown = [f for f in formats if f not in FORMATS]
@@ -56,4 +64,4 @@ def write_calibration(
     files: dict[str, str] = {}
     for name in dict.fromkeys(formats):  # in order, each once
         files.update(FORMATS[name](calibration, rect))
-    return write_files_atomically(out_dir, files)
+    return files

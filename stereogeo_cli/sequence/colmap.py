@@ -1,0 +1,376 @@
+"""The bridge to COLMAP: a sequence's frames become one rig's reconstruction, adjusted by COLMAP.
+
+COLMAP (pycolmap) does all of the multi-view work: SIFT features, matching of each frame with its
+neighbours in time (and the two images of a frame with each other), incremental mapping with the two
+cameras as one rig (a left→right pose shared by every frame) and each camera's intrinsics shared by its
+frames, then one last bundle adjustment whose covariance tells how well the sequence fixes the focal
+lengths. stereogeo's per-pair calibration only starts it: the focal lengths, the lens model and the rig's
+R, T are the initial values, nothing more.
+
+Pixel conventions: COLMAP puts (0, 0) at the top-left corner of the top-left pixel, stereogeo (OpenCV) at
+its centre; a principal point x in stereogeo's pixels is x + 0.5 in COLMAP's.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stereogeo_cli.errors import CalibrationFailed
+from stereogeo_cli.geometry import rotation_angle
+
+SENSORS = ("left", "right")  # the image folders of the workspace, and COLMAP's image-name prefixes
+
+default_conf = {
+    "max_features": 4096,  # SIFT features per image
+    "overlap": 8,  # each frame is matched with this many following frames (and quadratically further ones)
+    "min_model_frames": 3,  # a model of fewer registered frames is no calibration
+    "threads": -1,  # COLMAP's threads (-1: all cores)
+    "profile_step": 0.02,  # δ of the focal lengths' cost profile (adjust), in log f
+}
+
+
+@dataclass(frozen=True)
+class CameraStart:
+    """One camera as the adjustment starts from it (stereogeo's pixels): focal length, size, and whether a
+    radial lens is fitted (COLMAP's RADIAL, k1 and k2, else SIMPLE_PINHOLE)."""
+
+    focal_px: float
+    width: int
+    height: int
+    radial: bool
+
+    @property
+    def model(self) -> str:
+        return "RADIAL" if self.radial else "SIMPLE_PINHOLE"
+
+    def params(self) -> list[float]:
+        principal = [self.width / 2 + 0.5, self.height / 2 + 0.5]  # stereogeo's (w/2, h/2) in COLMAP's pixels
+        return [self.focal_px, *principal, *([0.0, 0.0] if self.radial else [])]
+
+
+@dataclass
+class AdjustedCamera:
+    """One camera after the adjustment: its focal length (pixels) with the 1-sigma from the adjustment's
+    covariance, and the radial terms k1, k2 of COLMAP's RADIAL (OpenCV's k1, k2; 0 for a pinhole)."""
+
+    focal_px: float
+    sigma_focal_px: float
+    k1: float = 0.0
+    k2: float = 0.0
+
+
+@dataclass
+class SequenceModel:
+    """The largest model COLMAP made of a sequence.
+
+    ``cam_from_world``: per registered frame name its left camera's [4 x 4] world→camera transform (the
+    world of the reconstruction, its scale arbitrary); ``R``, ``T`` the right camera from the left one
+    (``X_right = R @ X_left + T``, in the reconstruction's scale).
+    """
+
+    reconstruction: object  # pycolmap.Reconstruction
+    cameras: tuple[AdjustedCamera, AdjustedCamera]
+    R: np.ndarray
+    T: np.ndarray
+    cam_from_world: dict[str, np.ndarray]
+    models: int  # how many models the mapping made (1: the sequence held together)
+    points: int
+    reprojection_error_px: float
+    notes: list[str] = field(default_factory=list)
+
+
+class Cancelled(Exception):
+    """The run was stopped (``stop.requested``) while COLMAP worked: nothing it made is used."""
+
+
+def _cancellable(call, *args, stop=None, **kwargs):
+    """``call(*args, **kwargs, cancellation_token=…)`` on a thread of its own, while the main thread waits
+    in short steps: a signal's handler runs there (Python runs them only between its own instructions, never
+    inside COLMAP) and once ``stop.requested`` the token cancels COLMAP's work. Raises :class:`Cancelled`."""
+    import threading
+
+    token = _pycolmap().CancellationToken()
+    outcome: dict = {}
+
+    def run():
+        try:
+            outcome["value"] = call(*args, **kwargs, cancellation_token=token)
+        except BaseException as error:  # noqa: BLE001 - handed to the waiting thread
+            outcome["error"] = error
+
+    worker = threading.Thread(target=run, name="stereogeo-colmap", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(0.1)
+        if stop is not None and stop.requested and not token.is_cancelled():
+            token.cancel()
+    if token.is_cancelled():
+        raise Cancelled()
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome.get("value")
+
+
+def _pycolmap():
+    import pycolmap  # the COLMAP bindings load ~140 MB of libraries: only for sequences
+
+    return pycolmap
+
+
+def _matrix(rigid) -> np.ndarray:
+    """A pycolmap Rigid3d as a [4 x 4] matrix."""
+    M = np.eye(4)
+    M[:3, :4] = rigid.matrix()
+    return M
+
+
+def _frame_name(image_name: str) -> str:
+    return image_name.split("/", 1)[1]
+
+
+def _write_cameras(pycolmap, database_path: Path, starts: tuple[CameraStart, CameraStart]) -> None:
+    """Give each folder's camera (one per sensor, made by the feature extraction) its start values."""
+    db = pycolmap.Database.open(database_path)
+    try:
+        by_prefix = {}
+        for image in db.read_all_images():
+            by_prefix.setdefault(image.name.split("/", 1)[0], image.camera_id)
+        for sensor, start in zip(SENSORS, starts, strict=True):
+            camera = db.read_camera(by_prefix[sensor])
+            camera.model = start.model
+            camera.width, camera.height = start.width, start.height
+            camera.params = start.params()
+            camera.has_prior_focal_length = True
+            db.update_camera(camera)
+    finally:
+        db.close()
+
+
+def _rig_config(pycolmap, R: np.ndarray, T: np.ndarray):
+    """The rig: the left camera is the reference sensor, the right one sits at (R, T) from it."""
+    right = pycolmap.Rigid3d(pycolmap.Rotation3d(np.asarray(R, float)), np.asarray(T, float))
+    return pycolmap.RigConfig(
+        cameras=[
+            pycolmap.RigConfigCamera(ref_sensor=True, image_prefix=f"{SENSORS[0]}/"),
+            pycolmap.RigConfigCamera(image_prefix=f"{SENSORS[1]}/", cam_from_rig=right),
+        ]
+    )
+
+
+def match_frames(
+    workspace: Path, starts: tuple[CameraStart, CameraStart], R: np.ndarray, T: np.ndarray, conf: dict,
+    stop=None,
+) -> Path:  # fmt: skip
+    """Features and verified matches of the workspace's ``images/left`` and ``images/right`` frames in a
+    COLMAP database (returned): each frame with its ``overlap`` successors in time, and the two images of
+    each frame with each other."""
+    pycolmap = _pycolmap()
+    conf = {**default_conf, **conf}
+    database = workspace / "database.db"
+    database.unlink(missing_ok=True)
+    pycolmap.Database.open(database).close()
+    reader = pycolmap.ImageReaderOptions(camera_model=starts[0].model, camera_params=",".join(
+        str(p) for p in starts[0].params()
+    ))  # fmt: skip
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = conf["threads"]
+    extraction.sift.max_num_features = conf["max_features"]
+    _cancellable(
+        pycolmap.extract_features, database, workspace / "images",
+        camera_mode=pycolmap.CameraMode.PER_FOLDER, reader_options=reader,
+        extraction_options=extraction, device=pycolmap.Device.cpu, stop=stop,
+    )  # fmt: skip
+    _write_cameras(pycolmap, database, starts)
+    db = pycolmap.Database.open(database)
+    try:
+        pycolmap.apply_rig_config([_rig_config(pycolmap, R, T)], db)
+    finally:
+        db.close()
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = conf["threads"]
+    pairing = pycolmap.SequentialPairingOptions(overlap=conf["overlap"], quadratic_overlap=True)
+    _cancellable(
+        pycolmap.match_sequential, database, matching_options=matching, pairing_options=pairing,
+        device=pycolmap.Device.cpu, stop=stop,
+    )  # fmt: skip
+    return database
+
+
+def _mapping_options(pycolmap, radial: bool, conf: dict):
+    options = pycolmap.IncrementalPipelineOptions()
+    options.num_threads = conf["threads"]
+    options.ba_refine_focal_length = True
+    options.ba_refine_principal_point = False
+    options.ba_refine_extra_params = radial
+    options.ba_refine_sensor_from_rig = True
+    options.min_model_size = conf["min_model_frames"]
+    options.random_seed = 0
+    return options
+
+
+def map_frames(workspace: Path, database: Path, radial: bool, conf: dict, stop=None) -> list:
+    """COLMAP's incremental mapping of the matched frames: its models, largest first."""
+    pycolmap = _pycolmap()
+    conf = {**default_conf, **conf}
+    out = workspace / "mapping"
+    out.mkdir(exist_ok=True)
+    models = _cancellable(
+        pycolmap.incremental_mapping, database, workspace / "images", out,
+        options=_mapping_options(pycolmap, radial, conf), stop=stop,
+    )  # fmt: skip
+    return sorted(models.values(), key=lambda r: r.num_reg_frames(), reverse=True)
+
+
+def _bundle_adjust(reconstruction, radial: bool, refine_focal: bool) -> tuple[float, int]:
+    """COLMAP's bundle adjustment of every registered frame, the rig, the points and the intrinsics (the
+    focal lengths only where ``refine_focal``; the principal point held). Returns its final cost
+    (½ Σ r², r in pixels) and its degrees of freedom (residuals less parameters)."""
+    pycolmap = _pycolmap()
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = refine_focal
+    options.refine_principal_point = False
+    options.refine_extra_params = radial
+    options.refine_sensor_from_rig = True
+    options.print_summary = False
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in reconstruction.reg_image_ids():
+        config.add_image(image_id)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    summary = pycolmap.create_default_ceres_bundle_adjuster(options, config, reconstruction).solve()
+    ceres = summary.ceres_summary
+    return float(ceres.final_cost), int(ceres.num_residuals_reduced - ceres.num_effective_parameters_reduced)
+
+
+def adjust(reconstruction, radial: bool, conf: dict):
+    """One last bundle adjustment, and how well it fixes the focal lengths.
+
+    COLMAP's covariance estimator does not take a rig's non-reference cameras, so the focal lengths'
+    1-sigma comes from the adjustment's cost profile instead: both focal lengths scaled by e^±δ and held
+    while everything else (poses, rig, points, lens) is adjusted again; the cost rises by Δ, and with the
+    noise σ² = 2·cost / dof the relative 1-sigma of the common scale is δ / √(2Δ / σ²). The common scale is
+    what a motion without rotation leaves free (their ratio the rig's own matches fix): where the cost
+    barely rises, the sigma is wide.
+
+    Returns the (left, right) :class:`AdjustedCamera` (the same relative sigma for both)."""
+    pycolmap = _pycolmap()
+    cost, dof = _bundle_adjust(reconstruction, radial, refine_focal=True)
+    noise = 2.0 * cost / max(dof, 1)
+    delta = conf["profile_step"]
+    rises = []
+    for sign in (1.0, -1.0):
+        trial = pycolmap.Reconstruction(reconstruction)
+        for camera in trial.cameras.values():
+            params = np.array(camera.params)
+            params[list(camera.focal_length_idxs())] *= math.exp(sign * delta)
+            camera.params = params
+        rises.append(_bundle_adjust(trial, radial, refine_focal=False)[0] - cost)
+    rise = max(float(np.mean(rises)), 0.0)
+    sigma_rel = delta / math.sqrt(2.0 * rise / noise) if rise > 0 and noise > 0 else math.inf
+    cameras = []
+    for camera_id in _camera_ids(reconstruction):
+        params = [float(p) for p in reconstruction.cameras[camera_id].params]
+        k = params[3:5] if radial else [0.0, 0.0]
+        cameras.append(AdjustedCamera(params[0], params[0] * sigma_rel, k[0], k[1]))
+    return cameras[0], cameras[1]
+
+
+def rig_sigmas(model: SequenceModel) -> tuple[float, float]:
+    """R's and T's direction's 1-sigma (degrees) from the frames themselves: each registered frame's right
+    camera located alone (PnP against the adjusted points, its own pose, not the rig's) gives one reading
+    of the rig's R and T's direction; the sigma is their RMS distance from the rig's over √n (the
+    standard error of their mean), as the rig is in effect their mean. Infinite with fewer than 3."""
+    pycolmap = _pycolmap()
+    reconstruction = model.reconstruction
+    left_id, right_id = _camera_ids(reconstruction)
+    direction = model.T / np.linalg.norm(model.T)
+    angles, turns = [], []
+    for image_id in reconstruction.reg_image_ids():
+        image = reconstruction.images[image_id]
+        name = _frame_name(image.name)
+        if image.camera_id != right_id or name not in model.cam_from_world:
+            continue
+        seen = [p for p in image.points2D if p.has_point3D()]
+        if len(seen) < 12:
+            continue
+        xy = np.array([p.xy for p in seen])
+        xyz = np.array([reconstruction.points3D[p.point3D_id].xyz for p in seen])
+        found = pycolmap.estimate_and_refine_absolute_pose(xy, xyz, reconstruction.cameras[right_id])
+        if not found:
+            continue
+        right = _matrix(found["cam_from_world"])
+        left = model.cam_from_world[name]
+        R = right[:3, :3] @ left[:3, :3].T
+        T = right[:3, 3] - R @ left[:3, 3]
+        turns.append(math.degrees(rotation_angle(R @ model.R.T)))
+        cosine = float(np.clip(T @ direction / max(np.linalg.norm(T), 1e-12), -1.0, 1.0))
+        angles.append(math.degrees(math.acos(cosine)))
+    if len(turns) < 3:
+        return math.inf, math.inf
+    n = len(turns)
+    return (
+        math.sqrt(float(np.mean(np.square(turns))) / n),
+        math.sqrt(float(np.mean(np.square(angles))) / n),
+    )
+
+
+def _camera_ids(reconstruction) -> tuple[int, int]:
+    """The camera ids of the left and the right sensor."""
+    ids: dict[str, int] = {}
+    for image in reconstruction.images.values():
+        ids.setdefault(image.name.split("/", 1)[0], image.camera_id)
+    return ids[SENSORS[0]], ids[SENSORS[1]]
+
+
+def read_model(reconstruction, adjusted, models: int) -> SequenceModel:
+    """The pieces of an adjusted reconstruction that the calibration needs."""
+    left_id, right_id = _camera_ids(reconstruction)
+    cam_from_world: dict[str, np.ndarray] = {}
+    right_from_world: dict[str, np.ndarray] = {}
+    for image_id in reconstruction.reg_image_ids():
+        image = reconstruction.images[image_id]
+        pose = _matrix(image.cam_from_world())
+        (cam_from_world if image.camera_id == left_id else right_from_world)[_frame_name(image.name)] = pose
+    both = [name for name in cam_from_world if name in right_from_world]
+    if not both:
+        raise CalibrationFailed("COLMAP registered no frame with both of its images")
+    right_from_left = right_from_world[both[0]] @ np.linalg.inv(cam_from_world[both[0]])
+    return SequenceModel(
+        reconstruction=reconstruction,
+        cameras=adjusted,
+        R=right_from_left[:3, :3],
+        T=right_from_left[:3, 3],
+        cam_from_world=cam_from_world,
+        models=models,
+        points=reconstruction.num_points3D(),
+        reprojection_error_px=float(reconstruction.compute_mean_reprojection_error()),
+    )
+
+
+def reconstruct(
+    workspace: str | os.PathLike, starts: tuple[CameraStart, CameraStart], R: np.ndarray, T: np.ndarray,
+    conf: dict | None = None, stop=None,
+) -> SequenceModel:  # fmt: skip
+    """The whole bridge: match, map and adjust the frames in ``workspace/images/{left,right}/`` (the same
+    file names in both, in time order), starting from ``starts`` and the rig (R, T). ``stop``: a
+    :class:`~stereogeo_cli.batch.interrupt.Stop` whose request cancels COLMAP's work (:class:`Cancelled`).
+
+    Raises:
+        CalibrationFailed: COLMAP made no model of at least ``min_model_frames`` frames.
+    """
+    conf = {**default_conf, **(conf or {})}
+    workspace = Path(workspace)
+    database = match_frames(workspace, starts, R, T, conf, stop)
+    radial = starts[0].radial or starts[1].radial
+    models = map_frames(workspace, database, radial, conf, stop)
+    if not models or models[0].num_reg_frames() < conf["min_model_frames"]:
+        raise CalibrationFailed(
+            "COLMAP could not reconstruct the sequence (too few frames share enough features): "
+            "a sequence needs overlapping views of a textured scene"
+        )
+    largest = models[0]
+    return read_model(largest, adjust(largest, radial, conf), len(models))

@@ -1,0 +1,157 @@
+"""What a sequence's reconstruction and its pairs' own readings give together: the focal lengths, one
+world up and each frame's attitude.
+
+The focal length: the bundle adjustment's, with its covariance's sigma and a floor for what the
+adjustment does not model (the principal point held at the image centre, one radial term), combined in
+log f with the pairs' combined reading by inverse variance. Where the motion leaves the focal length
+free (a straight drive, a static rig), the adjustment's sigma is wide and the pairs' reading carries it.
+
+Gravity never enters the adjustment: every frame's up vector (each camera's, from its fields and
+vertical lines) is rotated into the reconstruction's world and the readings are combined, robustly, into
+one world up; each frame's roll and pitch are then read from its pose.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from stereogeo_cli.geometry import roll_pitch_from_gravity
+
+default_conf = {
+    # relative 1-sigma the adjustment's focal length keeps whatever its covariance says: a real camera's
+    # principal point lies up to ~2 % of the image off its centre, where the adjustment holds it, and moves
+    # the focal length fitted with it by about as much
+    "focal_floor_rel": 0.02,
+    # the motion "fixes" the focal length where the adjustment's sigma is below this share of the pairs'
+    # (it then carries over 90 % of the combined weight)
+    "observable_ratio": 1.0 / 3.0,
+    # a frame's up reading farther than this many of its sigmas from the robust centre is left out
+    "up_reject_sigmas": 3.0,
+    # the combined up's sigma is at least the frames' median sigma over this: the frames of one sequence
+    # share much of the network's error (one scene, one camera), which does not average away
+    "up_common_factor": 3.0,
+}
+
+
+@dataclass(frozen=True)
+class FocalEvidence:
+    """A focal length (pixels) and its 1-sigma (pixels)."""
+
+    focal_px: float
+    sigma_px: float
+
+
+@dataclass(frozen=True)
+class SequenceFocal:
+    """One camera's focal length from the sequence: ``focal_px`` ± ``sigma_px`` combined from the
+    adjustment's and the pairs'; ``observable``: the motion fixed it (the adjustment carries it);
+    ``adjustment_weight``: the adjustment's share of the combined weight (0–1)."""
+
+    focal_px: float
+    sigma_px: float
+    observable: bool
+    adjustment_weight: float
+    adjusted: FocalEvidence
+    pairs: FocalEvidence
+
+    def to_report(self) -> dict:
+        return {
+            "focal_px": self.focal_px,
+            "sigma_px": self.sigma_px,
+            "observable": self.observable,
+            "adjustment_weight": self.adjustment_weight,
+            "adjustment": {"focal_px": self.adjusted.focal_px, "sigma_px": _finite(self.adjusted.sigma_px)},
+            "pairs": {"focal_px": self.pairs.focal_px, "sigma_px": _finite(self.pairs.sigma_px)},
+        }
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def combine_adjusted_focal(adjusted, pairs: FocalEvidence, conf: dict | None = None) -> SequenceFocal:
+    """The adjustment's focal length (``adjusted.focal_px``, ``adjusted.sigma_focal_px`` from its
+    covariance, infinite where there is none) combined with the pairs' ``pairs`` in log f."""
+    conf = {**default_conf, **(conf or {})}
+    f_a, f_p = adjusted.focal_px, pairs.focal_px
+    s_a = math.hypot(adjusted.sigma_focal_px / f_a, conf["focal_floor_rel"])
+    s_p = pairs.sigma_px / f_p if math.isfinite(pairs.sigma_px) and pairs.sigma_px > 0 else math.inf
+    w_a = 0.0 if not math.isfinite(s_a) else 1.0 / s_a**2
+    w_p = 0.0 if not math.isfinite(s_p) else 1.0 / s_p**2
+    if w_a + w_p == 0:
+        return SequenceFocal(f_a, math.inf, False, 0.0, FocalEvidence(f_a, f_a * s_a), pairs)
+    log_f = (w_a * math.log(f_a) + w_p * math.log(f_p)) / (w_a + w_p)
+    focal = math.exp(log_f)
+    sigma = focal / math.sqrt(w_a + w_p)
+    observable = s_a < conf["observable_ratio"] * s_p
+    return SequenceFocal(focal, sigma, observable, w_a / (w_a + w_p), FocalEvidence(f_a, f_a * s_a), pairs)
+
+
+def _up_readings(readings, cam_from_world: dict[int, np.ndarray], R: np.ndarray):
+    """Each camera's up reading of every registered frame in world coordinates [N x 3], with its sigma
+    (radians) [N]."""
+    ups, sigmas = [], []
+    for reading in readings:
+        pose = cam_from_world.get(reading.index)
+        if pose is None:
+            continue
+        world_from_left = pose[:3, :3].T
+        for gravity, sigma_deg, to_left in zip(reading.gravity, reading.sigma_gravity_deg, (np.eye(3), R.T),
+                                               strict=True):  # fmt: skip
+            if gravity is None or not math.isfinite(sigma_deg) or sigma_deg <= 0:
+                continue
+            up = world_from_left @ to_left @ np.asarray(gravity, float)
+            ups.append(up / np.linalg.norm(up))
+            sigmas.append(math.radians(sigma_deg))
+    return np.array(ups).reshape(-1, 3), np.array(sigmas)
+
+
+def world_up(readings, cam_from_world: dict[int, np.ndarray], R: np.ndarray, conf: dict | None = None):
+    """One up vector [3] of the reconstruction's world from every registered frame's readings, its 1-sigma
+    (degrees) and how many readings it used.
+
+    Centre: the normalised coordinate-wise median; readings farther than ``up_reject_sigmas`` of their
+    sigma (or of the readings' spread, if wider) are left out; the rest are averaged with weights 1/σ². The
+    sigma is √(1/Σw), times the Birge ratio where the readings scatter more than their sigmas say, and at
+    least the median sigma over ``up_common_factor``."""
+    conf = {**default_conf, **(conf or {})}
+    ups, sigmas = _up_readings(readings, cam_from_world, R)
+    if len(ups) == 0:
+        return None, None, 0
+    centre = np.median(ups, axis=0)
+    centre /= np.linalg.norm(centre)
+    angles = np.arccos(np.clip(ups @ centre, -1.0, 1.0))
+    spread = 1.4826 * float(np.median(angles))
+    used = angles <= conf["up_reject_sigmas"] * np.maximum(sigmas, spread)
+    w = 1.0 / sigmas[used] ** 2
+    mean = np.sum(w[:, None] * ups[used], axis=0)
+    mean /= np.linalg.norm(mean)
+    sigma = math.sqrt(1.0 / float(np.sum(w)))
+    if used.sum() > 1:
+        residual = np.arccos(np.clip(ups[used] @ mean, -1.0, 1.0))
+        # two tangent components per reading: χ² has 2(k - 1) degrees of freedom
+        birge = math.sqrt(float(np.sum(w * residual**2)) / (2 * (used.sum() - 1)))
+        sigma *= max(1.0, birge)
+    sigma = max(sigma, float(np.median(sigmas[used])) / conf["up_common_factor"])
+    return mean, math.degrees(sigma), int(used.sum())
+
+
+def frame_attitudes(cam_from_world: dict[int, np.ndarray], up: np.ndarray, R: np.ndarray) -> dict[int, dict]:
+    """Each frame's up vector in its left and right camera and their roll and pitch (degrees)."""
+    out = {}
+    for index, pose in cam_from_world.items():
+        left = pose[:3, :3] @ up
+        right = R @ left
+        cams = {}
+        for side, g in (("left", left), ("right", right)):
+            roll, pitch = roll_pitch_from_gravity(g)
+            cams[side] = {
+                "gravity_up": g.tolist(),
+                "roll_deg": math.degrees(float(roll)),
+                "pitch_deg": math.degrees(float(pitch)),
+            }
+        out[index] = cams
+    return out

@@ -1,0 +1,401 @@
+"""``calibrate-sequence``: one rig's calibration from a sequence of its frame pairs.
+
+The stages, in order:
+
+1. every frame pair is calibrated as ``calibrate`` does (:class:`~stereogeo_cli.pipeline.Calibrator`):
+   its focal lengths, lens, gravity, R, T and learned baseline are the per-pair evidence;
+2. COLMAP reconstructs the frames with the two cameras as one rig, started from that evidence, and its
+   last bundle adjustment gives each camera's focal length with a covariance (``colmap.py``);
+3. the adjustment's focal lengths are combined with the pairs' by their sigmas (``evidence.py``), each
+   frame's gravity is rotated into the reconstruction's world and combined into one world up, and the
+   metric scale comes from ``--baseline`` or the pairs' learned baselines;
+4. the world is turned so that its z axis points up and scaled to metres, and the rig's calibration, the
+   report's ``sequence`` block, the left camera's trajectory and the COLMAP model are returned for writing.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from stereogeo_cli.batch.same_rig import chordal_mean, combine_focals
+from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
+from stereogeo_cli.geometry import intrinsic_matrix, rotation_angle
+from stereogeo_cli.io import StereoCalibration
+from stereogeo_cli.refine.lm import vfov_sigma_deg
+from stereogeo_cli.sequence import colmap
+from stereogeo_cli.sequence.evidence import (
+    FocalEvidence,
+    SequenceFocal,
+    combine_adjusted_focal,
+    frame_attitudes,
+    world_up,
+)
+from stereogeo_cli.sequence.sources import FramePair, FrameSource
+
+
+@dataclass
+class PairReading:
+    """What one frame pair's own calibration read (stereogeo's pixels; unit up vectors; degrees)."""
+
+    index: int
+    focal: tuple[float, float]
+    sigma_focal: tuple[float, float]
+    gravity: tuple[np.ndarray | None, np.ndarray | None]
+    sigma_gravity_deg: tuple[float, float]  # the mean of roll's and pitch's reported sigmas, per camera
+    R: np.ndarray
+    T: np.ndarray
+    baseline_m: float
+    sigma_baseline_rel: float | None
+    lens: bool  # a radial lens term was fitted on either camera
+
+
+@dataclass
+class SequenceResult:
+    """A sequence's calibration: the rig's files (``calibration``), the world-aligned COLMAP model and
+    the left camera's trajectory (time, [4 x 4] world←camera in metres, z up) per registered frame."""
+
+    calibration: StereoCalibration
+    reconstruction: Any  # pycolmap.Reconstruction, metric, z up
+    trajectory: list[tuple[float, np.ndarray]]
+    warnings: list[str] = field(default_factory=list)
+
+    def report(self) -> dict:
+        return self.calibration.to_report()
+
+
+def _reading(index: int, result) -> PairReading:
+    c = result.calibration
+    sigmas = (c.sigma_left or {}, c.sigma_right or {})
+    gravity_sigma = tuple(
+        float(np.nanmean([s.get("roll_deg") or math.nan, s.get("pitch_deg") or math.nan])) for s in sigmas
+    )
+    pose = c.extra_report.get("pose") or {}
+    return PairReading(
+        index=index,
+        focal=(float(c.K_left[0, 0]), float(c.K_right[0, 0])),
+        sigma_focal=tuple(float(s.get("focal_px") or math.inf) for s in sigmas),
+        gravity=(c.gravity_left, c.gravity_right),
+        sigma_gravity_deg=gravity_sigma,
+        R=c.R,
+        T=c.T,
+        baseline_m=c.baseline_m,
+        sigma_baseline_rel=pose.get("sigma_baseline_rel"),
+        lens=bool(np.any(c.D_left != 0) or np.any(c.D_right != 0)),
+    )
+
+
+def _write_frame(images: Path, frame: FramePair, file_name: str) -> None:
+    """The frame's two images as PNG files of the workspace (COLMAP reads files)."""
+    for sensor, image in zip(colmap.SENSORS, (frame.left, frame.right), strict=True):
+        bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+        ok, data = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        if not ok:
+            raise StereoGeoError(f"frame {frame.name}: could not be encoded for COLMAP")
+        (images / sensor / file_name).write_bytes(data.tobytes())
+
+
+def _check_size(frame: FramePair, sizes: tuple | None) -> tuple:
+    now = (frame.left.shape[:2], frame.right.shape[:2])
+    if sizes is not None and now != sizes:
+        raise StereoGeoError(
+            f"frame {frame.name} is {now[0][1]}x{now[0][0]} / {now[1][1]}x{now[1][0]} px, the first frame "
+            f"{sizes[0][1]}x{sizes[0][0]} / {sizes[1][1]}x{sizes[1][0]}: a sequence's frames must keep "
+            "their size"
+        )
+    return now
+
+
+def read_frames(
+    source: FrameSource, calibrator, images: Path, *, baseline_m: float | None,
+    progress: Callable[[int, int | None], None] | None = None, stop=None,
+) -> tuple[list[FramePair], list[PairReading], tuple, list[str]]:  # fmt: skip
+    """Write each frame of ``source`` into ``images/{left,right}/`` and calibrate it as a pair.
+
+    Returns the frames (without their pixels), the pairs' readings (frames whose pair could not be
+    calibrated have none: they still join the reconstruction), the image sizes ((h, w) left, right) and a
+    warning per frame that failed."""
+    for sensor in colmap.SENSORS:
+        (images / sensor).mkdir(parents=True, exist_ok=True)
+    frames: list[FramePair] = []
+    readings: list[PairReading] = []
+    warnings: list[str] = []
+    sizes = None
+    total = source.count()
+    for frame in source:
+        if stop is not None and stop.requested:
+            raise colmap.Cancelled()
+        sizes = _check_size(frame, sizes)
+        _write_frame(images, frame, f"{frame.index:06d}.png")
+        try:
+            result = calibrator.calibrate(frame.left, frame.right, baseline_m=baseline_m)
+            readings.append(_reading(frame.index, result))
+        except CalibrationFailed as error:
+            warnings.append(f"frame {frame.name}: {error}")
+        frames.append(FramePair(frame.index, frame.time, frame.name, np.empty(0), np.empty(0)))
+        if progress is not None:
+            progress(len(frames), total)
+    if len(frames) < 2:
+        read = len(frames)
+        raise StereoGeoError(f"{source.description}: a sequence needs 2 frame pairs or more ({read} read)")
+    if not readings:
+        raise CalibrationFailed("no frame pair of the sequence could be calibrated")
+    return frames, readings, sizes, warnings
+
+
+def _start(readings: list[PairReading], sizes: tuple, pinhole: bool) -> tuple:
+    """The adjustment's start: each camera's combined focal length, the lens model (a radial term where
+    most pairs fitted one), and the rig's R and T (the pairs' mean rotation and direction, the median
+    learned length)."""
+    radial = not pinhole and sum(r.lens for r in readings) * 2 > len(readings)
+    focals = [
+        combine_focals([r.focal[i] for r in readings], [r.sigma_focal[i] for r in readings]) for i in (0, 1)
+    ]
+    starts = tuple(
+        colmap.CameraStart(f.focal_px, w, h, radial) for f, (h, w) in zip(focals, sizes, strict=True)
+    )
+    R = chordal_mean([r.R for r in readings])
+    direction = np.sum([r.T / np.linalg.norm(r.T) for r in readings], axis=0)
+    T = direction / np.linalg.norm(direction) * float(np.median([r.baseline_m for r in readings]))
+    return starts, focals, R, T
+
+
+def _scale(model: colmap.SequenceModel, readings: list[PairReading], baseline_m: float | None):
+    """Metres per reconstruction unit, where it came from, and the baseline's relative 1-sigma."""
+    length = float(np.linalg.norm(model.T))
+    if baseline_m is not None:
+        return baseline_m / length, "baseline", 0.0
+    # the pairs' learned baselines: their median; its sigma is a typical pair's (the frames of one scene
+    # share the pose head's error on it, which does not average away)
+    metres = float(np.median([r.baseline_m for r in readings]))
+    sigmas = [s for r in readings if (s := r.sigma_baseline_rel) is not None and math.isfinite(s)]
+    return metres / length, "learned", float(np.median(sigmas)) if sigmas else None
+
+
+def _align(model: colmap.SequenceModel, up: np.ndarray, scale: float) -> np.ndarray:
+    """The similarity (4 x 4) that takes the reconstruction's world to the output's: z along ``up``, the
+    first registered frame's left camera at the origin, metres. Applied to the reconstruction too."""
+    import pycolmap
+
+    z = up / np.linalg.norm(up)
+    first = model.cam_from_world[sorted(model.cam_from_world)[0]]
+    forward = np.linalg.inv(first)[:3, 2]  # the first camera's optical axis in the world
+    x = np.cross(forward, z)
+    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-6 else np.cross([0.0, 1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)  # the first camera looks along +y, level
+    rotation = np.stack([x, y, z])  # new_from_old
+    centre = np.linalg.inv(first)[:3, 3]
+    translation = -scale * rotation @ centre
+    model.reconstruction.transform(pycolmap.Sim3d(scale, pycolmap.Rotation3d(rotation), translation))
+    S = np.eye(4)
+    S[:3, :3], S[:3, 3] = scale * rotation, translation
+    return S
+
+
+def calibrate_frames(
+    frames: list[FramePair],
+    readings: list[PairReading],
+    sizes: tuple,
+    workspace: Path,
+    *,
+    baseline_m: float | None,
+    pinhole: bool,
+    model_file: tuple[str | None, str | None],
+    warnings: list[str],
+    conf: dict | None = None,
+    stop=None,
+) -> SequenceResult:
+    """Stages 2–4 on frames already written into ``workspace/images`` and read as pairs."""
+    timing: dict[str, float] = {}
+    notes = list(warnings)
+    start = time.perf_counter()
+    starts, pair_focals, R0, T0 = _start(readings, sizes, pinhole)
+    conf = conf or {}
+    model = colmap.reconstruct(workspace, starts, R0, T0, conf.get("colmap"), stop)
+    timing["colmap"] = (time.perf_counter() - start) * 1e3
+    focals = [
+        combine_adjusted_focal(adjusted, FocalEvidence(pf.focal_px, pf.sigma_px), conf.get("evidence"))
+        for adjusted, pf in zip(model.cameras, pair_focals, strict=True)
+    ]
+    by_index = {f"{f.index:06d}.png": f for f in frames}
+    registered = {int(name[:6]): pose for name, pose in model.cam_from_world.items()}
+    up, up_sigma_deg, used = world_up(readings, registered, model.R, conf.get("evidence"))
+    if up is None:  # no frame's gravity could be read: the first frame's image up stands in, unweighed
+        first = registered[min(registered)]
+        up = -first[:3, :3].T[:, 1]
+        notes.append("no frame's gravity could be read: the world's z axis is the first frame's image up")
+    scale, scale_source, baseline_sigma = _scale(model, readings, baseline_m)
+    to_output = _align(model, up, scale)
+    cam_from_world = {i: pose @ np.linalg.inv(to_output) for i, pose in registered.items()}
+    attitudes = frame_attitudes(cam_from_world, np.array([0.0, 0.0, 1.0]), model.R)
+    span = _rotation_span(cam_from_world)
+    trajectory = [
+        (by_index[f"{i:06d}.png"].time, np.linalg.inv(cam_from_world[i])) for i in sorted(cam_from_world)
+    ]
+    if model.models > 1:
+        notes.append(f"the mapping broke the sequence into {model.models} models: the largest is used")
+    unregistered = len(frames) - len(registered)
+    if unregistered:
+        notes.append(f"{unregistered} of {len(frames)} frames could not be registered")
+    observable = all(f.observable for f in focals)
+    if not observable:
+        notes.append(
+            "the motion does not fix the focal length (too little rotation or too few frames): it comes "
+            "from the pairs' readings, with their sigma"
+        )
+    calibration = _assemble(
+        frames, model, focals, attitudes, (up, up_sigma_deg, used), span,
+        scale * float(np.linalg.norm(model.T)), (scale_source, baseline_sigma), model_file, notes, timing,
+        sizes,
+    )  # fmt: skip
+    return SequenceResult(calibration, model.reconstruction, trajectory, notes)
+
+
+def _rotation_span(cam_from_world: dict[int, np.ndarray]) -> float:
+    """The largest rotation (degrees) between any registered frame's camera and the first's."""
+    poses = [cam_from_world[i][:3, :3] for i in sorted(cam_from_world)]
+    return max(math.degrees(rotation_angle(p @ poses[0].T)) for p in poses)
+
+
+def _sigma_dict(focal: SequenceFocal, height: int) -> dict[str, float]:
+    return {
+        "focal_px": focal.sigma_px,
+        "vfov_deg": vfov_sigma_deg(focal.focal_px, height, focal.sigma_px / focal.focal_px),
+    }
+
+
+def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model_file, notes, timing,
+              sizes) -> StereoCalibration:  # fmt: skip
+    """The rig's :class:`StereoCalibration` with the report's ``pose`` and ``sequence`` blocks."""
+    (h_l, w_l), (h_r, w_r) = sizes
+    K = [intrinsic_matrix(f.focal_px, w, h) for f, (h, w) in zip(focals, sizes, strict=True)]
+    D = [np.array([c.k1, c.k2, 0.0, 0.0, 0.0]) if (c.k1 or c.k2) else np.zeros(0) for c in model.cameras]
+    scale_source, baseline_sigma = scale
+    up_world, up_sigma_deg, up_used = up
+    T = model.T / np.linalg.norm(model.T) * baseline
+    by_index = {f.index: f for f in frames}
+    sigma_rotation, sigma_direction = colmap.rig_sigmas(model)
+    pose = {
+        "source": "sequence",
+        "sigma_rotation_deg": _finite(sigma_rotation),
+        "sigma_direction_deg": _finite(sigma_direction),
+        "rotation_deg": math.degrees(rotation_angle(model.R)),
+        "sigma_baseline_rel": baseline_sigma,
+    }
+    sequence = {
+        "frames_read": len(frames),
+        "frames_registered": len(attitudes),
+        "models": model.models,
+        "points": model.points,
+        "reprojection_error_px": model.reprojection_error_px,
+        "rotation_span_deg": span,
+        "focal_observable": all(f.observable for f in focals),
+        "evidence": {
+            "focal": {side: f.to_report() for side, f in zip(("left", "right"), focals, strict=True)},
+            "gravity": {"readings_used": up_used, "sigma_deg": up_sigma_deg},
+            "scale": {"source": scale_source, "sigma_rel": baseline_sigma},
+            "lens": {
+                side: {"k1": c.k1, "k2": c.k2, "sigma_k1": _finite(c.sigma_k1)}
+                for side, c in zip(("left", "right"), model.cameras, strict=True)
+            },
+        },
+        # the output world: z up (gravity), the first registered frame's left camera at the origin looking
+        # along +y, metres
+        "world": {"up": [0.0, 0.0, 1.0], "sigma_up_deg": up_sigma_deg},
+        "frames": [
+            {"index": i, "name": by_index[i].name, "time": by_index[i].time, **attitudes[i]}
+            for i in sorted(attitudes)
+        ],
+    }
+    return StereoCalibration(
+        K_left=K[0], K_right=K[1], image_size_left=(w_l, h_l), image_size_right=(w_r, h_r), R=model.R, T=T,
+        D_left=D[0], D_right=D[1], sigma_left=_sigma_dict(focals[0], h_l),
+        sigma_right=_sigma_dict(focals[1], h_r),
+        scale_source=scale_source, matches_found=model.points, matches_inliers=model.points, timing_ms=timing,
+        model_file=model_file[0], model_sha256=model_file[1], notes="; ".join(notes),
+        extra_report={"pose": pose, "sequence": sequence, "warnings": list(notes)},
+    )  # fmt: skip
+
+
+def _finite(value: float | None) -> float | None:
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+def calibrate_sequence(
+    source: FrameSource,
+    calibrator,
+    *,
+    baseline_m: float | None = None,
+    pinhole: bool = False,
+    conf: dict | None = None,
+    progress: Callable[[int, int | None], None] | None = None,
+    workspace: str | Path | None = None,
+    stop=None,
+) -> SequenceResult | None:
+    """Calibrate the rig of ``source``'s frames (see the module's docstring for the stages).
+
+    ``calibrator``: a :class:`~stereogeo_cli.pipeline.Calibrator` (one network session for every pair);
+    ``workspace``: a folder for COLMAP's images and database (default: a temporary one, removed after);
+    ``stop``: a :class:`~stereogeo_cli.batch.interrupt.Stop`: once it is requested the run ends after the
+    frame or COLMAP stage in flight and returns None (nothing half done is returned).
+    """
+    temporary = workspace is None
+    folder = Path(tempfile.mkdtemp(prefix="stereogeo-sequence-")) if temporary else Path(workspace)
+    try:
+        frames, readings, sizes, warnings = read_frames(
+            source, calibrator, folder / "images", baseline_m=baseline_m, progress=progress, stop=stop
+        )
+        if progress is not None:
+            progress(len(frames), len(frames), "COLMAP: matching, mapping, adjusting")
+        model_file = (calibrator.model_path.name, calibrator.network.model_sha256)
+        return calibrate_frames(
+            frames, readings, sizes, folder, baseline_m=baseline_m, pinhole=pinhole, model_file=model_file,
+            warnings=[*source.warnings, *warnings], conf=conf, stop=stop,
+        )  # fmt: skip
+    except colmap.Cancelled:
+        return None
+    finally:
+        if temporary:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def trajectory_tum(trajectory: list[tuple[float, np.ndarray]]) -> str:
+    """The left camera's trajectory in the TUM format: per frame ``time tx ty tz qx qy qz qw`` (seconds,
+    metres; the camera's position and orientation in the world, z up)."""
+    from stereogeo_cli.geometry import quaternion_from_rotation
+
+    lines = ["# time tx ty tz qx qy qz qw (left camera in the world: z up, metres)"]
+    for stamp, world_from_cam in trajectory:
+        w, x, y, z = quaternion_from_rotation(world_from_cam[:3, :3])
+        t = world_from_cam[:3, 3]
+        lines.append(" ".join(f"{v:.9f}" for v in (stamp, *t, x, y, z, w)))
+    return "\n".join(lines) + "\n"
+
+
+def colmap_model_files(reconstruction) -> dict[str, bytes]:
+    """The COLMAP model (binary, as COLMAP writes it) as ``{"sparse/0/<file>": bytes}``."""
+    with tempfile.TemporaryDirectory(prefix="stereogeo-model-") as folder:
+        reconstruction.write_binary(folder)
+        return {f"sparse/0/{p.name}": p.read_bytes() for p in sorted(Path(folder).iterdir()) if p.is_file()}
+
+
+def write_sequence(out_dir: str | Path, result: SequenceResult, formats=None) -> list[Path]:
+    """Every file of ``calibrate -o`` for the rig (``formats``: all by default), ``trajectory.txt`` and the
+    COLMAP model in ``sparse/0/``, written together and atomically."""
+    from stereogeo_cli.io.atomic import write_files_atomically
+    from stereogeo_cli.io.writers import DEFAULT_FORMATS, render_calibration
+
+    files: dict[str, str | bytes] = dict(render_calibration(result.calibration, formats or DEFAULT_FORMATS))
+    files["trajectory.txt"] = trajectory_tum(result.trajectory)
+    files.update(colmap_model_files(result.reconstruction))
+    return write_files_atomically(out_dir, files)
