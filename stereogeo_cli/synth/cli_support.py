@@ -79,15 +79,67 @@ def build_config(
     )
 
 
+# defaults of the options that differ between pair datasets and sequences (None on the command line)
+PAIR_DEFAULTS = {
+    "count": 1000,
+    "size": 240,
+    "aspects": "4:3,16:9,1:1,3:2",
+    "vfov": (20.0, 105.0),
+    "baseline": (0.05, 0.8),
+    "max_angle": 45.0,
+    "augment": 1.0,
+}
+SEQUENCE_DEFAULTS = {
+    "count": 50,
+    "size": 480,
+    "aspects": "4:3",
+    "vfov": (45.0, 80.0),
+    "baseline": (0.1, 0.5),
+    "max_angle": 5.0,
+    "augment": 0.5,
+}
+
+
+def _resolve(options: dict, defaults: dict) -> dict:
+    """Options with None (not given) replaced by the mode's defaults; ranges per end."""
+    out = dict(options)
+    for key, default in defaults.items():
+        if key not in out:
+            continue
+        if isinstance(default, tuple):
+            out[key] = tuple(d if v is None else v for v, d in zip(out[key], default, strict=True))
+        elif out[key] is None:
+            out[key] = default
+    return out
+
+
 def run_make_data(
-    out: Path | None, *, count: int, seed: int, workers: int, preview: Path | None, progress: bool, **options
+    out: Path | None,
+    *,
+    count: int | None,
+    seed: int,
+    workers: int,
+    preview: Path | None,
+    progress: bool,
+    sequence: str | None = None,
+    **options,
 ) -> None:
-    """Write the dataset and/or the contact sheet; a one-line summary goes to stderr."""
+    """Write the dataset and/or the contact sheet, or one sequence; a one-line summary goes to stderr.
+
+    Options left None take the defaults of the mode (PAIR_DEFAULTS or SEQUENCE_DEFAULTS).
+    """
+    if sequence is not None:
+        _run_sequence(
+            out, count=count, seed=seed, preview=preview, progress=progress, motion=sequence, **options
+        )
+        return
+    resolved = _resolve({"count": count, **options}, PAIR_DEFAULTS)
+    count = resolved.pop("count")
     if out is None and preview is None:
         raise StereoGeoError("give an output folder, --preview SHEET.png, or both")
     if workers < 1:
         raise StereoGeoError("--workers must be ≥ 1")
-    config = build_config(**options)
+    config = build_config(**resolved)
     if out is not None:
         from stereogeo_cli.synth.dataset import make_dataset
 
@@ -101,3 +153,36 @@ def run_make_data(
 
         write_preview(Path(preview), seed, config, dataset_size=max(count, 16))
         print(f"wrote contact sheet {preview}", file=sys.stderr)
+
+
+def _run_sequence(
+    out: Path | None,
+    *,
+    count: int | None,
+    seed: int,
+    preview: Path | None,
+    progress: bool,
+    motion: str,
+    **options,
+) -> None:
+    """``make-data OUT --sequence MOTION``: one sequence of ``count`` frame pairs in OUT (docs/synth.md,
+    "Sequences"). Images are always landscape and never panorama crops."""
+    from stereogeo_cli.synth.sequence import MOTIONS, make_sequence
+
+    if motion not in MOTIONS:
+        raise StereoGeoError(f"--sequence: unknown motion {motion!r}; choose from {', '.join(MOTIONS)}")
+    if out is None:
+        raise StereoGeoError("--sequence needs an output folder")
+    if preview is not None:
+        raise StereoGeoError("--preview shows independent pairs; it does not go with --sequence")
+    resolved = _resolve({"count": count, **options}, SEQUENCE_DEFAULTS)
+    count = resolved.pop("count")
+    if count < 1:
+        raise StereoGeoError("--count: a sequence needs at least one frame")
+    config = build_config(**resolved).replace(portrait_share=0.0, panorama_share=0.0)
+    summary = make_sequence(Path(out), motion, count, seed, config, progress=progress)
+    print(
+        f"wrote a {summary.motion} sequence of {summary.frames} frame pairs ({summary.scene} scene) "
+        f"to {summary.folder}",
+        file=sys.stderr,
+    )

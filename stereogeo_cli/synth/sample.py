@@ -93,9 +93,21 @@ class Exposure:
 
 
 def augment(
-    rng: np.random.Generator, image: np.ndarray, strength: float, exposure: Exposure | None = None
+    rng: np.random.Generator,
+    image: np.ndarray,
+    strength: float,
+    exposure: Exposure | None = None,
+    noise_rng: np.random.Generator | None = None,
+    blur_share: float = 0.3,
 ) -> np.ndarray:
-    """Exposure, gamma, white balance, occasional blur and sensor noise on an [H x W x 3] uint8 image."""
+    """Exposure, gamma, white balance, occasional blur and sensor noise on an [H x W x 3] uint8 image.
+
+    noise_rng: where the noise pattern is drawn from (default ``rng``). A sequence passes the same ``rng``
+    state for every frame of a camera (the same photometric response and noise level) and a fresh
+    ``noise_rng`` per frame (new noise).
+    blur_share: the chance of a Gaussian blur (σ 0.3–1.1 px) at strength 1; the draws are the same for
+    any value, so 0 changes nothing else.
+    """
     if strength <= 0:
         return image
     exposure = exposure or Exposure(1.0, 1.0, (1.0, 1.0, 1.0))
@@ -108,17 +120,17 @@ def augment(
     levels = np.arange(256, dtype=np.float64) / 255.0
     lut = np.clip(255.0 * levels[:, None] ** gamma * gains[None, :] + 0.5, 0, 255).astype(np.uint8)
     out = cv2.LUT(image, lut.reshape(256, 1, 3))
-    if rng.random() < 0.3 * strength:
+    if rng.random() < blur_share * strength:
         out = cv2.GaussianBlur(out, (0, 0), float(rng.uniform(0.3, 1.1)))
     sigma = float(rng.uniform(0.0, 3.0 * strength))
-    offset = int(rng.integers(0, _NOISE.size))
+    offset = int((noise_rng or rng).integers(0, _NOISE.size))
     if sigma > 0.3:
         n = out.size
         if n <= _NOISE.size // 2:  # a window of a fixed table of normals: far cheaper than drawing them
             start = offset % (_NOISE.size - n)
             noise = _NOISE[start : start + n].reshape(out.shape)
         else:
-            noise = rng.standard_normal(out.shape, dtype=np.float32)
+            noise = (noise_rng or rng).standard_normal(out.shape, dtype=np.float32)
         out = cv2.scaleAdd(noise, sigma, out.astype(np.float32) + 0.5)
         out = np.clip(out, 0, 255).astype(np.uint8)
     return out
