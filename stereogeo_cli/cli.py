@@ -12,7 +12,7 @@ import typer
 import typer.core
 
 from stereogeo_cli import __version__
-from stereogeo_cli.errors import EXIT_INTERNAL, EXIT_PARTIAL_BATCH, StereoGeoError
+from stereogeo_cli.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_PARTIAL_BATCH, StereoGeoError
 
 # Exits and usage errors that Typer turns into exit codes itself (its click may be vendored or the package)
 _PASS_THROUGH = (
@@ -116,22 +116,55 @@ def fail(error: StereoGeoError) -> typer.Exit:
 def make_data(
     out: Annotated[
         Path | None,
-        typer.Argument(help="Folder for the dataset (left/, right/, calib.jsonl); resumed if it exists."),
+        typer.Argument(
+            help="Folder for the dataset (left/, right/, calib.jsonl; resumed if it exists), "
+            "or for the sequence (left/, right/, calib.json)."
+        ),
     ] = None,
     *,
-    count: Annotated[int, typer.Option("--count", "-n", help="Number of stereo pairs to write.")] = 1000,
+    count: Annotated[
+        int | None,
+        typer.Option(
+            "--count", "-n", help="Number of stereo pairs (default 1000), or frames of a --sequence (50)."
+        ),
+    ] = None,
     seed: Annotated[int, typer.Option(help="Seed: the same seed and options give the same bytes.")] = 0,
+    sequence: Annotated[
+        str | None,
+        typer.Option(
+            help="Render one sequence of a stereo rig moving through one scene instead of independent pairs: "
+            "straight, turning, handheld or static (per-frame ground truth in calib.json)."
+        ),
+    ] = None,
     workers: Annotated[int, typer.Option(help="Rendering processes to run in parallel.")] = 1,
-    size: Annotated[int, typer.Option(help="Short side of the images in pixels.")] = 240,
+    size: Annotated[
+        int | None, typer.Option(help="Short side of the images in pixels (default 240; sequences 480).")
+    ] = None,
     aspects: Annotated[
-        str, typer.Option(help="Comma-separated aspect ratios (width:height) to draw image sizes from.")
-    ] = "4:3,16:9,1:1,3:2",
+        str | None,
+        typer.Option(
+            help="Comma-separated aspect ratios (width:height) to draw image sizes from "
+            "(default 4:3,16:9,1:1,3:2; sequences 4:3)."
+        ),
+    ] = None,
     portrait_share: Annotated[float, typer.Option(help="Share of pairs with portrait images.")] = 0.2,
-    vfov_min: Annotated[float, typer.Option(help="Smallest vertical field of view, in degrees.")] = 20.0,
-    vfov_max: Annotated[float, typer.Option(help="Largest vertical field of view, in degrees.")] = 105.0,
-    baseline_min: Annotated[float, typer.Option(help="Shortest baseline, in metres.")] = 0.05,
-    baseline_max: Annotated[float, typer.Option(help="Longest baseline, in metres.")] = 0.8,
-    max_angle: Annotated[float, typer.Option(help="Largest rig roll and pitch, in degrees.")] = 45.0,
+    vfov_min: Annotated[
+        float | None,
+        typer.Option(help="Smallest vertical field of view, in degrees (default 20; sequences 45)."),
+    ] = None,
+    vfov_max: Annotated[
+        float | None,
+        typer.Option(help="Largest vertical field of view, in degrees (default 105; sequences 80)."),
+    ] = None,
+    baseline_min: Annotated[
+        float | None, typer.Option(help="Shortest baseline, in metres (default 0.05; sequences 0.1).")
+    ] = None,
+    baseline_max: Annotated[
+        float | None, typer.Option(help="Longest baseline, in metres (default 0.8; sequences 0.5).")
+    ] = None,
+    max_angle: Annotated[
+        float | None, typer.Option(help="Largest rig roll and pitch, in degrees (default 45; sequences 5).")
+    ] = None,
     outdoor_share: Annotated[float, typer.Option(help="Share of rendered scenes that are outdoor.")] = 0.5,
     close_share: Annotated[
         float, typer.Option(help="Share of indoor scenes that are close range (a desk seen from 0.35–1.5 m).")
@@ -144,8 +177,11 @@ def make_data(
         typer.Option(help="Crops of a panorama magnify it at most this much (narrower crops are widened)."),
     ] = 1.5,
     augment: Annotated[
-        float, typer.Option(help="Strength of noise, blur and exposure changes (0: none).")
-    ] = 1.0,
+        float | None,
+        typer.Option(
+            help="Strength of noise, blur and exposure changes (default 1; sequences 0.5; 0: none)."
+        ),
+    ] = None,
     depth: Annotated[
         bool, typer.Option("--depth", help="Also write z-depth maps in metres (depth/left|right/*.npy).")
     ] = False,
@@ -163,7 +199,8 @@ def make_data(
         typer.Option("--progress/--no-progress", help="Show a progress bar (default: if a terminal)."),
     ] = None,
 ) -> None:
-    """Render a synthetic stereo dataset with exact ground truth (K, R, T, gravity per camera)."""
+    """Render a synthetic stereo dataset with exact ground truth (K, R, T, gravity per camera), or with
+    --sequence one sequence of a moving rig (K, R, T and the pose of every frame)."""
     require_training_extra("make-data")
     from stereogeo_cli.synth.cli_support import run_make_data
 
@@ -171,6 +208,7 @@ def make_data(
         out,
         count=count,
         seed=seed,
+        sequence=sequence,
         workers=workers,
         size=size,
         aspects=aspects,
@@ -485,26 +523,47 @@ def batch_calibrate(
     json_out: Annotated[
         bool, typer.Option("--json", help="Print the summary as JSON on stdout, and nothing else there.")
     ] = False,
+    resume: Annotated[
+        bool,
+        typer.Option(
+            "--resume",
+            help="Keep the pairs OUT already holds, calibrated with the same options, model and images (e.g. "
+            "by a run that was interrupted), and calibrate the others; the summary lists all.",
+        ),
+    ] = False,
+    overwrite: Annotated[
+        bool, typer.Option("--overwrite", help="Replace the results OUT already holds (else they are kept).")
+    ] = False,
 ) -> None:
-    """Calibrate every stereo pair of a folder with one network session; exit code 4 if any pair failed."""
+    """Calibrate every stereo pair of a folder with one network session; exit code 4 if any pair failed.
+
+    Ctrl-C (or SIGTERM) stops after the pairs in flight and writes the summaries (exit code 130, or 143);
+    --resume continues."""
     if baseline is not None and not (baseline > 0 and np.isfinite(baseline)):
         raise StereoGeoError(f"--baseline must be a positive number, got {baseline}")
     if threads < 0 or workers < 1:
         raise StereoGeoError("--threads must be 0 or more and --workers 1 or more")
     from stereogeo_cli.batch import parse_shard, run_batch
+    from stereogeo_cli.batch.interrupt import interruptible
 
     names, shard_spec = _formats(formats), parse_shard(shard) if shard is not None else None
     _check_output_folder(output)
-    summary = run_batch(
-        folder, output, formats=names, baseline_m=baseline, model=model, threads=threads,
-        workers=workers, same_rig=same_rig, shard=shard_spec, progress=sys.stderr.isatty(),
-        pinhole=pinhole, lines=lines, exif=exif,
-    )  # fmt: skip
+    notice = "{name}: stopping after the pairs in flight (again: at once), then writing the summaries"
+    with interruptible(notice=notice) as stop:
+        summary = run_batch(
+            folder, output, formats=names, baseline_m=baseline, model=model, threads=threads,
+            workers=workers, same_rig=same_rig, shard=shard_spec, progress=sys.stderr.isatty(),
+            pinhole=pinhole, lines=lines, exif=exif, resume=resume, overwrite=overwrite, stop=stop,
+        )  # fmt: skip
+    total, left = len(summary.outcomes), summary.not_run
+    ok = total - summary.failed - left
     if json_out:
         sys.stdout.write(summary.json_text)
     else:
-        ok = len(summary.outcomes) - summary.failed
-        typer.echo(f"{len(summary.outcomes)} pairs: {ok} ok, {summary.failed} failed; results in {output}")
+        typer.echo(
+            f"{total} pairs: {ok} ok, {summary.failed} failed{f', {left} not run' if left else ''}"
+            f"{f' ({summary.resumed} kept from before)' if summary.resumed else ''}; results in {output}"
+        )
         if summary.rig is not None:
             rig = summary.rig.to_report()
             typer.echo(
@@ -512,6 +571,14 @@ def batch_calibrate(
                 f"{rig['right']['focal_px']:.1f} px, R {rig['pose']['rotation_deg']:.2f}°, "
                 f"baseline {rig['baseline_m']:.4f} m"
             )
+    if summary.interrupted is not None:
+        rest = f"calibrate the other {left} pairs" if left else "make the joint calibration (--same-rig)"
+        typer.echo(
+            f"interrupted by {summary.interrupted}: {total - left} of {total} pairs done; summaries written "
+            f"to {output}; to {rest}, run the same command again with --resume",
+            err=True,
+        )
+        raise typer.Exit(code=stop.exit_code or EXIT_INTERRUPTED)
     if summary.rig_error is not None:
         raise summary.rig_error
     if summary.failed:
@@ -533,6 +600,163 @@ def _pose_sigmas(text: str) -> dict[str, float]:
         "pose_sigma_direction_deg": direction,
         "pose_sigma_scale_rel": scale,
     }
+
+
+@app.command("calibrate-sequence")
+def calibrate_sequence(
+    source: Annotated[
+        Path | None,
+        typer.Argument(
+            help="A folder of frame pairs in time order (the layouts batch-calibrate reads), or a ROS 1 "
+            "bag (.bag) or ROS 2 bag (its folder) with --left-topic and --right-topic."
+        ),
+    ] = None,
+    *,
+    output: Annotated[
+        Path | None,
+        typer.Option(
+            "--output", "-o", help="Folder for the rig's calibration files, trajectory.txt and sparse/."
+        ),
+    ] = None,
+    video: Annotated[
+        tuple[Path, Path] | None,
+        typer.Option(help="Two videos, the left camera's and the right camera's (frames paired by number)."),
+    ] = None,
+    sbs: Annotated[
+        Path | None, typer.Option(help="One side-by-side video: the left image in the left half.")
+    ] = None,
+    left_topic: Annotated[str | None, typer.Option(help="The bag's left image topic.")] = None,
+    right_topic: Annotated[str | None, typer.Option(help="The bag's right image topic.")] = None,
+    every: Annotated[int, typer.Option(help="Keep every Nth frame pair.")] = 1,
+    fps: Annotated[
+        float | None,
+        typer.Option(
+            help="Videos and bags: keep frames at most this many per second; a folder: its frame rate "
+            "(the frames' times)."
+        ),
+    ] = None,
+    max_frames: Annotated[int | None, typer.Option(help="Use at most this many frame pairs.")] = None,
+    formats: Annotated[
+        str,
+        typer.Option(
+            "--format",
+            help="Comma-separated calibration formats to write: opencv, ros, kalibr, colmap, json "
+            "(trajectory.txt and sparse/ are always written).",
+        ),
+    ] = "opencv,ros,kalibr,colmap,json",
+    json_out: Annotated[
+        bool, typer.Option("--json", help="Print the JSON report on stdout, and nothing else there.")
+    ] = False,
+    baseline: Annotated[
+        float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the metric scale.")
+    ] = None,
+    pinhole: PinholeFlag = False,
+    workspace: Annotated[
+        Path | None,
+        typer.Option(help="Keep COLMAP's images and database in this folder (default: a temporary one)."),
+    ] = None,
+    model: Annotated[
+        Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
+    ] = None,
+    threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core but one).")] = 0,
+    progress: Annotated[
+        bool | None,
+        typer.Option("--progress/--no-progress", help="Show a progress bar (default: if a terminal)."),
+    ] = None,
+) -> None:
+    """Calibrate a stereo rig from a sequence of its frame pairs (a drive, a robot's run, a hand-held
+    sweep): COLMAP's bundle adjustment over the frames fixes the focal lengths where the rig turns."""
+    _check_calibrate_options(baseline, None, None, None, threads)
+    for name, value in (("--every", every), ("--max-frames", max_frames)):
+        if value is not None and value < 1:
+            raise typer.BadParameter(f"must be at least 1, got {value}", param_hint=name)
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise typer.BadParameter(f"must be a positive number, got {fps}", param_hint="--fps")
+    names = _formats(formats)
+    if output is not None:
+        _check_output_folder(output)
+    from stereogeo_cli.batch.interrupt import interruptible
+    from stereogeo_cli.pipeline import Calibrator, calibrator_conf
+    from stereogeo_cli.sequence.run import calibrate_sequence as run_sequence
+    from stereogeo_cli.sequence.run import write_sequence
+    from stereogeo_cli.sequence.sources import open_source
+
+    frames = open_source(
+        source, video=video, sbs=sbs, left_topic=left_topic, right_topic=right_topic, every=every, fps=fps,
+        max_frames=max_frames,
+    )  # fmt: skip
+    show = sys.stderr.isatty() if progress is None else progress
+    notice = "{name}: stopping after the stage in flight, nothing is written; {name} again to stop at once"
+    with interruptible(notice=notice) as stop, _sequence_progress(show, frames.description) as bar:
+        calibrator = Calibrator(model, threads=threads, conf=calibrator_conf(pinhole))
+        result = run_sequence(
+            frames, calibrator, baseline_m=baseline, pinhole=pinhole, workspace=workspace,
+            progress=bar, stop=stop,
+        )  # fmt: skip
+    if stop.requested:
+        typer.echo(f"error: interrupted by {stop.name}: nothing was written", err=True)
+        raise typer.Exit(code=stop.exit_code or EXIT_INTERRUPTED)
+    written = write_sequence(output, result, names) if output is not None else []
+    if json_out:
+        from stereogeo_cli.io.report import report_json
+
+        sys.stdout.write(report_json(result.calibration))
+        return
+    from rich.console import Console
+
+    console = Console()
+    _print_sequence_summary(result.report(), console)
+    _print_written(console, written)
+
+
+class _sequence_progress:
+    """A progress bar over the frames on stderr (a no-op callable where it is off)."""
+
+    def __init__(self, show: bool, description: str):
+        self.show, self.description = show, description
+        self._progress = self._task = None
+
+    def __enter__(self):
+        if self.show:
+            from rich.progress import Progress
+
+            self._progress = Progress(console=_stderr_console(), transient=True)
+            self._progress.start()
+            self._task = self._progress.add_task(f"reading {self.description}", total=None)
+        return self
+
+    def __call__(self, done: int, total: int | None, stage: str | None = None) -> None:
+        if self._progress is not None:
+            self._progress.update(self._task, completed=done, total=total, **(
+                {"description": stage} if stage else {}
+            ))  # fmt: skip
+
+    def __exit__(self, *exc) -> None:
+        if self._progress is not None:
+            self._progress.stop()
+
+
+def _print_sequence_summary(report: dict, console) -> None:
+    """The rig's focal lengths with their evidence, R, T and the sequence's figures."""
+    seq = report["sequence"]
+    focal = seq["evidence"]["focal"]
+    for side in ("left", "right"):
+        cam, f = report[side], focal[side]
+        console.print(
+            f"{side:5}  focal {cam['focal_px']:.1f} ± {cam['sigma']['focal_px']:.1f} px  "
+            f"(adjustment {f['adjustment']['focal_px']:.1f}, pairs {f['pairs']['focal_px']:.1f}; "
+            f"adjustment's weight {100 * f['adjustment_weight']:.0f} %)  vFoV {cam['vfov_deg']:.2f}°"
+        )
+    pose = report["pose"]
+    console.print(f"R      {pose['rotation_deg']:.3f}° (± {pose['sigma_rotation_deg'] or 0:.3f}°)")
+    console.print(f"T      {np.round(report['T'], 4).tolist()} m ({report['scale_source']} scale)")
+    console.print(
+        f"frames {seq['frames_registered']} of {seq['frames_read']} registered, the rig turned "
+        f"{seq['rotation_span_deg']:.1f}°: focal length "
+        + ("fixed by the motion" if seq["focal_observable"] else "NOT fixed by the motion (from the pairs)")
+    )
+    for warning in report.get("warnings") or []:
+        console.print(f"[yellow]warning:[/yellow] {warning}")
 
 
 @app.command("export-onnx")
@@ -687,7 +911,11 @@ def train(ctx: typer.Context) -> None:
 @app.command()
 def evaluate(
     dataset: Annotated[
-        Path, typer.Argument(help="A dataset folder: left/, right/ and calib.jsonl with ground truth.")
+        Path,
+        typer.Argument(
+            help="A dataset folder: stereo pairs (left/, right/ and calib.jsonl with ground truth) or single "
+            "photographs (images and a labels.jsonl of their intrinsics)."
+        ),
     ],
     *,
     json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON on stdout.")] = False,
@@ -702,32 +930,71 @@ def evaluate(
     ] = None,
     model: Annotated[Path | None, typer.Option(help="The ONNX model (default: the shipped one).")] = None,
     threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core but one).")] = 0,
+    split: Annotated[
+        str | None,
+        typer.Option(
+            help="Single photographs: score one half of a split, 'train' or 'measure' (the cameras "
+            "--split-file lists under that name), or the images a file lists (their labels' 'file'), "
+            "one a line."
+        ),
+    ] = None,
+    split_file: Annotated[
+        Path | None,
+        typer.Option(
+            help="The split file for --split train|measure (default: the checkout's "
+            "benchmarks/real_photos_split.json)."
+        ),
+    ] = None,
 ) -> None:
-    """Calibrate every pair of a dataset with ground truth and report the papers' accuracy metrics."""
+    """Calibrate every pair (or photograph) of a dataset with ground truth and report the papers' accuracy
+    metrics."""
     import json
 
     from rich.progress import Progress
 
+    from stereogeo_cli import evaluate_photos as photos
     from stereogeo_cli.evaluate import evaluate_dataset, read_dataset
     from stereogeo_cli.pipeline import Calibrator
 
     if plot is not None:
         _check_output_folder(plot.parent)
-    total = len(read_dataset(dataset))
+    photo_set = photos.is_photo_set(dataset)
+    if photo_set:
+        if baselines:
+            raise StereoGeoError("--baselines needs stereo pairs; this folder holds single photographs")
+        records = photos.select(photos.read_labels(dataset), split, split_file)
+        if not records:
+            raise StereoGeoError(f"--split {split} selects no image of {dataset}")
+        total = len(records)
+    else:
+        if split is not None or split_file is not None:
+            raise StereoGeoError("--split is for single photographs (a folder with a labels.jsonl)")
+        total = len(read_dataset(dataset))
     calibrator = Calibrator(model, threads=threads)
     with Progress(transient=True, disable=not sys.stderr.isatty(), console=_stderr_console()) as bar:
         task = bar.add_task("evaluating", total=total)
-        results = evaluate_dataset(
-            dataset, calibrator, baselines=baselines, progress=lambda: bar.advance(task)
-        )
+        if photo_set:
+            results = photos.evaluate_photos(dataset, calibrator, records, progress=lambda: bar.advance(task))
+            results["split"] = split
+        else:
+            results = evaluate_dataset(
+                dataset, calibrator, baselines=baselines, progress=lambda: bar.advance(task)
+            )
     if plot is not None:
         from stereogeo_cli.evaluate import plot_error_cdfs
 
-        plot_error_cdfs(results, plot)
+        plotted = results
+        if photo_set:  # the photo's errors under the names of a pair's
+            rows = results["photos"]
+            plotted = {"pairs": [{k.removeprefix("photo_"): v for k, v in r.items()} for r in rows]}
+        plot_error_cdfs(plotted, plot)
     if json_out:
         sys.stdout.write(json.dumps(results, indent=2, allow_nan=False, default=float) + "\n")
         return
-    _print_evaluation(results)
+    if photo_set:
+        _print_photo_evaluation(results)
+    else:
+        _print_evaluation(results)
 
 
 def _stderr_console():
@@ -777,6 +1044,58 @@ def _print_evaluation(results: dict) -> None:
             "errors within the reported 1 / 3 sigma (68 % / 99.7 % for honest sigmas): " + ", ".join(shares),
             soft_wrap=True,
         )
+    for reason in results["skipped"]:
+        console.print(f"skipped: {reason}")
+    for failure in results["failed"]:
+        console.print(f"[yellow]failed:[/yellow] {failure['id']}: {failure['error']}")
+
+
+def _print_photo_evaluation(results: dict) -> None:
+    """The single photographs' summaries (all, each set, each source), each with the naive guess's."""
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    groups = results["photo_metrics"]
+    split = f", split {results['split']}" if results.get("split") else ""
+    table = Table(
+        title=f"{results['dataset']}{split}: medians, every camera counting once",
+        caption="naive: f = 0.7 · max(w, h); 1σ/3σ: the shares of vFoV errors within the reported sigmas (%)",
+    )
+    for column in ("group", "images", "cameras", "vFoV (°)", "AUC@1/5/10°", "focal (rel.)", "1σ/3σ"):
+        table.add_column(column, justify="left" if column == "group" else "right")
+
+    def cell(m: dict, key: str, digits: int) -> str:
+        return "–" if m.get(key, {}).get("median") is None else f"{m[key]['median']:.{digits}f}"
+
+    def aucs(m: dict, key: str) -> str:
+        return "/".join(f"{100 * m[key][f'auc@{t}']:.0f}" for t in (1, 5, 10)) if key in m else "–"
+
+    def within(sigma: dict | None) -> str:
+        if not sigma:
+            return "–"
+        return f"{100 * sigma['within_1_sigma']:.0f}/{100 * sigma['within_3_sigma']:.0f}"
+
+    named = [("all", groups["all"])]
+    named += [(f"set {k}", v) for k, v in groups["sets"].items() if len(groups["sets"]) > 1]
+    named += [(k, v) for k, v in groups["sources"].items()]
+    for name, m in named:
+        table.add_row(
+            name, str(m["images"]), str(m["cameras"]), cell(m, "vfov_deg", 2), aucs(m, "vfov_deg"),
+            cell(m, "focal_rel", 3), within(m.get("vfov_sigma")),
+        )  # fmt: skip
+        table.add_row(
+            "  naive", "", "", cell(m, "naive_vfov_deg", 2), aucs(m, "naive_vfov_deg"),
+            cell(m, "naive_focal_rel", 3), "", end_section=True,
+        )  # fmt: skip
+    console.print(table)
+    m = groups["all"]
+    for name, label in (("roll", "roll"), ("pitch", "pitch")):
+        if f"{name}_deg" in m:
+            console.print(
+                f"{label} (°): median {cell(m, f'{name}_deg', 2)} (level camera: "
+                f"{cell(m, f'naive_{name}_deg', 2)}), within 1σ/3σ {within(m.get(f'{name}_sigma'))} %"
+            )
     for reason in results["skipped"]:
         console.print(f"skipped: {reason}")
     for failure in results["failed"]:
