@@ -90,21 +90,70 @@ def test_blank_image_fails_calibration_with_the_reason(pair, onnx_model, tmp_pat
     assert_error(invoke("calibrate", pair[0], blank, "--model", onnx_model), 3, "blank")
 
 
-@pytest.mark.parametrize("kind", ["16-bit", "rgba", "grey"])
-def test_16_bit_rgba_and_grey_images_are_accepted(pair, onnx_model, tmp_path, kind):
-    image = rgb(pair[1])
-    if kind == "16-bit":
-        converted = cv2.cvtColor(image, cv2.COLOR_RGB2BGR).astype(np.uint16) * 257
-    elif kind == "rgba":
-        converted = cv2.cvtColor(image, cv2.COLOR_RGB2BGRA)
-        converted[..., 3] = 200  # transparency is dropped, not blended
-    else:
-        converted = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+def report_differences(a, b, tol: float, path: str = "") -> list[str]:
+    """Where two JSON reports differ, numbers by more than ``tol`` (absolute); timings are not compared."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        if set(a) != set(b):
+            return [f"{path}: keys {sorted(set(a) ^ set(b))}"]
+        return [d for k in a if k != "timing_ms" for d in report_differences(a[k], b[k], tol, f"{path}.{k}")]
+    if isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            return [f"{path}: {len(a)} != {len(b)} items"]
+        return [
+            d
+            for i, (x, y) in enumerate(zip(a, b, strict=True))
+            for d in report_differences(x, y, tol, f"{path}[{i}]")
+        ]
+    if _number(a) and _number(b):
+        return [] if abs(a - b) <= tol else [f"{path}: {a} != {b}"]
+    return [] if a == b else [f"{path}: {a!r} != {b!r}"]
+
+
+def _number(value) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+@pytest.fixture(scope="module")
+def eight_bit_reports(pair, onnx_model, tmp_path_factory) -> dict[str, dict]:
+    """The reports of the pair with its right image as 8-bit RGB ("colour") and as 8-bit RGB of its grey
+    version, three equal channels ("grey"): what the other encodings of those pixels must give."""
+    folder = tmp_path_factory.mktemp("eight-bit")
+    grey = write_rgb(folder / "grey-rgb.png", cv2.cvtColor(cv2.cvtColor(rgb(pair[1]), cv2.COLOR_RGB2GRAY),
+                                                           cv2.COLOR_GRAY2RGB))  # fmt: skip
+    reports = {}
+    for name, right in (("colour", pair[1]), ("grey", grey)):
+        result = invoke("calibrate", pair[0], right, "--model", onnx_model, "--json")
+        assert result.exit_code == 0, result.output
+        reports[name] = json.loads(result.stdout)
+    return reports
+
+
+@pytest.mark.parametrize(
+    "kind, reference",
+    [("16-bit", "colour"), ("rgba", "colour"), ("16-bit rgba", "colour"), ("grey", "grey"),
+     ("16-bit grey", "grey")],
+)  # fmt: skip
+def test_16_bit_rgba_and_grey_images_give_the_8_bit_report(pair, onnx_model, eight_bit_reports, tmp_path,
+                                                          kind, reference):  # fmt: skip
+    """The same pixels stored as 16 bits (8-bit value x 257), with an alpha channel, or as one grey channel
+    calibrate exactly as the 8-bit RGB file does (docs/io.md, "Input images")."""
+    bgr = cv2.cvtColor(rgb(pair[1]), cv2.COLOR_RGB2BGR)
+    image = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY) if "grey" in kind else bgr
+    if "rgba" in kind:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2BGRA)
+        image[..., 3] = 200  # transparency is dropped, not blended
+    if "16-bit" in kind:
+        image = image.astype(np.uint16) * 257
     path = tmp_path / "right.png"
-    assert cv2.imwrite(str(path), converted)
+    assert cv2.imwrite(str(path), image)
+    assert cv2.imread(str(path), cv2.IMREAD_UNCHANGED).dtype == image.dtype  # stored as meant
     result = invoke("calibrate", pair[0], path, "--model", onnx_model, "--json")
     assert result.exit_code == 0, result.output
-    assert json.loads(result.stdout)["right"]["width"] == 320
+    report = json.loads(result.stdout)
+    assert report["right"]["width"] == 320
+    assert report_differences(report, eight_bit_reports[reference], 1e-6) == []
+    if reference == "grey":  # not the colour one's: the comparison tells the two apart
+        assert report_differences(report, eight_bit_reports["colour"], 1e-6) != []
 
 
 def test_output_folder_that_is_a_file(pair, onnx_model, tmp_path):
