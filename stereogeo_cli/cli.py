@@ -743,16 +743,16 @@ def _print_sequence_summary(report: dict, console) -> None:
     for side in ("left", "right"):
         cam, f = report[side], focal[side]
         console.print(
-            f"{side:5}  focal {cam['focal_px']:.1f} ± {cam['sigma']['focal_px']:.1f} px  "
-            f"(adjustment {f['adjustment']['focal_px']:.1f}, pairs {f['pairs']['focal_px']:.1f}; "
-            f"adjustment's weight {100 * f['adjustment_weight']:.0f} %)  vFoV {cam['vfov_deg']:.2f}°"
+            f"{side:5}  focal {cam['focal_px']:.1f} ± {cam['sigma']['focal_px']:.1f} px, vFoV "
+            f"{cam['vfov_deg']:.2f}°  (adjustment {f['adjustment']['focal_px']:.1f}, pairs "
+            f"{f['pairs']['focal_px']:.1f}: the adjustment's weight {100 * f['adjustment_weight']:.0f} %)"
         )
     pose = report["pose"]
     console.print(f"R      {pose['rotation_deg']:.3f}° (± {pose['sigma_rotation_deg'] or 0:.3f}°)")
     console.print(f"T      {np.round(report['T'], 4).tolist()} m ({report['scale_source']} scale)")
+    turned = "" if seq["rotation_span_deg"] is None else f", the rig turned {seq['rotation_span_deg']:.1f}°"
     console.print(
-        f"frames {seq['frames_registered']} of {seq['frames_read']} registered, the rig turned "
-        f"{seq['rotation_span_deg']:.1f}°: focal length "
+        f"frames {seq['frames_registered']} of {seq['frames_read']} registered{turned}: focal length "
         + ("fixed by the motion" if seq["focal_observable"] else "NOT fixed by the motion (from the pairs)")
     )
     for warning in report.get("warnings") or []:

@@ -185,10 +185,24 @@ def _evaluate(run, work: Path) -> None:
     assert (work / "cdf.png").stat().st_size > 0
 
 
+def _calibrate_sequence(run, work: Path) -> None:
+    for name in (
+        "f1",
+        "f2",
+        "f3",
+    ):  # a rig that stands still: COLMAP has nothing to map, the pairs calibrate it
+        _example_pair(work / "seq", name)
+    report = json.loads(run("calibrate-sequence", "seq", "-o", "out", "--json").stdout)
+    assert report["sequence"]["frames_read"] == 3 and report["sequence"]["focal_observable"] is False
+    assert abs(report["left"]["vfov_deg"] - 70.6) < 10
+    assert (work / "out" / "report.json").is_file() and (work / "out" / "intrinsics.yml").is_file()
+
+
 # Every command of the base install (no training extra) and its runner above: a new command gets a line.
 BASE_COMMANDS = {
     "calibrate": _calibrate,
     "batch-calibrate": _batch_calibrate,
+    "calibrate-sequence": _calibrate_sequence,
     "evaluate": _evaluate,
 }
 # The commands of the training extra and arguments they take: without it, one line naming the extra.

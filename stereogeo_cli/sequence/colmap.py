@@ -31,6 +31,9 @@ default_conf = {
     "min_model_frames": 3,  # a model of fewer registered frames is no calibration
     "threads": -1,  # COLMAP's threads (-1: all cores)
     "profile_step": 0.02,  # δ of the focal lengths' cost profile (adjust), in log f
+    # the principal points are freed where the adjustment fixes the focal lengths better than this
+    # (relative 1-sigma at the reprojection noise): the motion turned the rig enough to see them
+    "principal_point_below": 0.01,
 }
 
 
@@ -62,6 +65,8 @@ class AdjustedCamera:
     sigma_focal_px: float
     k1: float = 0.0
     k2: float = 0.0
+    principal_point: tuple[float, float] | None = None  # (cx, cy) in stereogeo's pixels
+    principal_point_refined: bool = False  # False: held at the image centre
 
 
 @dataclass
@@ -107,9 +112,9 @@ def _cancellable(call, *args, stop=None, **kwargs):
     worker.start()
     while worker.is_alive():
         worker.join(0.1)
-        if stop is not None and stop.requested and not token.is_cancelled():
+        if stop is not None and stop.requested and not token.is_cancelled:
             token.cancel()
-    if token.is_cancelled():
+    if token.is_cancelled:
         raise Cancelled()
     if "error" in outcome:
         raise outcome["error"]
@@ -119,6 +124,7 @@ def _cancellable(call, *args, stop=None, **kwargs):
 def _pycolmap():
     import pycolmap  # the COLMAP bindings load ~140 MB of libraries: only for sequences
 
+    pycolmap.logging.minloglevel = 3  # COLMAP's own lines are not the user's: its failures come as errors
     return pycolmap
 
 
@@ -226,14 +232,16 @@ def map_frames(workspace: Path, database: Path, radial: bool, conf: dict, stop=N
     return sorted(models.values(), key=lambda r: r.num_reg_frames(), reverse=True)
 
 
-def _bundle_adjust(reconstruction, radial: bool, refine_focal: bool) -> tuple[float, int]:
+def _bundle_adjust(
+    reconstruction, radial: bool, refine_focal: bool, refine_principal_point: bool = False
+) -> tuple[float, int]:
     """COLMAP's bundle adjustment of every registered frame, the rig, the points and the intrinsics (the
-    focal lengths only where ``refine_focal``; the principal point held). Returns its final cost
-    (½ Σ r², r in pixels) and its degrees of freedom (residuals less parameters)."""
+    focal lengths only where ``refine_focal``, the principal point only where ``refine_principal_point``).
+    Returns its final cost (½ Σ r², r in pixels) and its degrees of freedom (residuals less parameters)."""
     pycolmap = _pycolmap()
     options = pycolmap.BundleAdjustmentOptions()
     options.refine_focal_length = refine_focal
-    options.refine_principal_point = False
+    options.refine_principal_point = refine_principal_point
     options.refine_extra_params = radial
     options.refine_sensor_from_rig = True
     options.print_summary = False
@@ -256,6 +264,10 @@ def adjust(reconstruction, radial: bool, conf: dict):
     what a motion without rotation leaves free (their ratio the rig's own matches fix): where the cost
     barely rises, the sigma is wide.
 
+    Where the motion fixes the focal lengths (relative sigma below ``principal_point_below``: the rig
+    turned), it fixes the principal points too: a last adjustment frees them (an off-centre principal point
+    held at the centre biases f and R). Elsewhere they stay at the image centre.
+
     Returns the (left, right) :class:`AdjustedCamera` (the same relative sigma for both)."""
     pycolmap = _pycolmap()
     cost, dof = _bundle_adjust(reconstruction, radial, refine_focal=True)
@@ -271,11 +283,17 @@ def adjust(reconstruction, radial: bool, conf: dict):
         rises.append(_bundle_adjust(trial, radial, refine_focal=False)[0] - cost)
     rise = max(float(np.mean(rises)), 0.0)
     sigma_rel = delta / math.sqrt(2.0 * rise / noise) if rise > 0 and noise > 0 else math.inf
+    free_centre = sigma_rel < conf["principal_point_below"]
+    if free_centre:
+        _bundle_adjust(reconstruction, radial, refine_focal=True, refine_principal_point=True)
     cameras = []
     for camera_id in _camera_ids(reconstruction):
-        params = [float(p) for p in reconstruction.cameras[camera_id].params]
+        camera = reconstruction.cameras[camera_id]
+        params = [float(p) for p in camera.params]
         k = params[3:5] if radial else [0.0, 0.0]
-        cameras.append(AdjustedCamera(params[0], params[0] * sigma_rel, k[0], k[1]))
+        # COLMAP's principal point in stereogeo's pixels (pixel centres at integers)
+        centre = (camera.principal_point_x - 0.5, camera.principal_point_y - 0.5)
+        cameras.append(AdjustedCamera(params[0], params[0] * sigma_rel, k[0], k[1], centre, free_centre))
     return cameras[0], cameras[1]
 
 

@@ -21,10 +21,17 @@ import numpy as np
 from stereogeo_cli.geometry import roll_pitch_from_gravity
 
 default_conf = {
-    # relative 1-sigma the adjustment's focal length keeps whatever its covariance says: a real camera's
-    # principal point lies up to ~2 % of the image off its centre, where the adjustment holds it, and moves
-    # the focal length fitted with it by about as much
+    # relative 1-sigma the adjustment's focal length keeps whatever its cost profile says: a real camera's
+    # principal point lies up to ~2 % of the image off its centre, and where the adjustment holds it there
+    # it moves the focal length by about as much; where it frees it, the lens model (one or two radial
+    # terms) still leaves about 1 %
     "focal_floor_rel": 0.02,
+    "focal_floor_rel_free_centre": 0.01,
+    # the principal point's 1-sigma as a share of the image's larger side: held at the centre (a real
+    # camera's lies up to ~2 % off it) or freed by the adjustment (then within ~0.5 %); it turns the rig's
+    # R and T's direction by about σ / f radians, which their reported sigmas take in
+    "principal_point_sigma_rel": 0.02,
+    "principal_point_sigma_rel_free": 0.005,
     # the motion "fixes" the focal length where the adjustment's sigma is below this share of the pairs'
     # (it then carries over 90 % of the combined weight)
     "observable_ratio": 1.0 / 3.0,
@@ -77,7 +84,8 @@ def combine_adjusted_focal(adjusted, pairs: FocalEvidence, conf: dict | None = N
     covariance, infinite where there is none) combined with the pairs' ``pairs`` in log f."""
     conf = {**default_conf, **(conf or {})}
     f_a, f_p = adjusted.focal_px, pairs.focal_px
-    s_a = math.hypot(adjusted.sigma_focal_px / f_a, conf["focal_floor_rel"])
+    floor = conf["focal_floor_rel_free_centre" if adjusted.principal_point_refined else "focal_floor_rel"]
+    s_a = math.hypot(adjusted.sigma_focal_px / f_a, floor)
     s_p = pairs.sigma_px / f_p if math.isfinite(pairs.sigma_px) and pairs.sigma_px > 0 else math.inf
     w_a = 0.0 if not math.isfinite(s_a) else 1.0 / s_a**2
     w_p = 0.0 if not math.isfinite(s_p) else 1.0 / s_p**2
@@ -88,6 +96,24 @@ def combine_adjusted_focal(adjusted, pairs: FocalEvidence, conf: dict | None = N
     sigma = focal / math.sqrt(w_a + w_p)
     observable = s_a < conf["observable_ratio"] * s_p
     return SequenceFocal(focal, sigma, observable, w_a / (w_a + w_p), FocalEvidence(f_a, f_a * s_a), pairs)
+
+
+def rig_sigmas_deg(
+    spread: tuple[float, float], cameras, sizes: tuple, conf: dict | None = None
+) -> tuple[float, float]:
+    """R's and T's direction's reported 1-sigma (degrees): the frames' own spread (``spread``, from
+    :func:`~stereogeo_cli.sequence.colmap.rig_sigmas`) with what the principal points' uncertainty adds
+    (σ_pp / f for the less certain camera) in quadrature. ``sizes``: ((h, w) left, right)."""
+    conf = {**default_conf, **(conf or {})}
+    floor = 0.0
+    for camera, (height, width) in zip(cameras, sizes, strict=True):
+        share = conf[
+            "principal_point_sigma_rel_free"
+            if camera.principal_point_refined
+            else "principal_point_sigma_rel"
+        ]
+        floor = max(floor, math.degrees(share * max(width, height) / camera.focal_px))
+    return math.hypot(spread[0], floor), math.hypot(spread[1], floor)
 
 
 def _up_readings(readings, cam_from_world: dict[int, np.ndarray], R: np.ndarray):

@@ -29,7 +29,7 @@ import numpy as np
 
 from stereogeo_cli.batch.same_rig import chordal_mean, combine_focals
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
-from stereogeo_cli.geometry import intrinsic_matrix, rotation_angle
+from stereogeo_cli.geometry import intrinsic_matrix, roll_pitch_from_gravity, rotation_angle
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.refine.lm import vfov_sigma_deg
 from stereogeo_cli.sequence import colmap
@@ -38,6 +38,7 @@ from stereogeo_cli.sequence.evidence import (
     SequenceFocal,
     combine_adjusted_focal,
     frame_attitudes,
+    rig_sigmas_deg,
     world_up,
 )
 from stereogeo_cli.sequence.sources import FramePair, FrameSource
@@ -57,6 +58,8 @@ class PairReading:
     baseline_m: float
     sigma_baseline_rel: float | None
     lens: bool  # a radial lens term was fitted on either camera
+    sigma_rotation_deg: float = math.inf
+    sigma_direction_deg: float = math.inf
 
 
 @dataclass
@@ -91,6 +94,8 @@ def _reading(index: int, result) -> PairReading:
         baseline_m=c.baseline_m,
         sigma_baseline_rel=pose.get("sigma_baseline_rel"),
         lens=bool(np.any(c.D_left != 0) or np.any(c.D_right != 0)),
+        sigma_rotation_deg=pose.get("sigma_rotation_deg") or math.inf,
+        sigma_direction_deg=pose.get("sigma_direction_deg") or math.inf,
     )
 
 
@@ -221,8 +226,16 @@ def calibrate_frames(
     start = time.perf_counter()
     starts, pair_focals, R0, T0 = _start(readings, sizes, pinhole)
     conf = conf or {}
-    model = colmap.reconstruct(workspace, starts, R0, T0, conf.get("colmap"), stop)
+    try:
+        model = colmap.reconstruct(workspace, starts, R0, T0, conf.get("colmap"), stop)
+    except CalibrationFailed as error:  # a static rig, or views that share nothing: the pairs alone
+        notes.append(f"{error}; the calibration is the pairs' combined")
+        return _pairs_only(
+            frames, readings, sizes, starts, pair_focals, R0, T0, baseline_m, model_file, notes
+        )
     timing["colmap"] = (time.perf_counter() - start) * 1e3
+    # the frames' own spread, in the reconstruction's own world (before it is aligned)
+    rig_sigmas = rig_sigmas_deg(colmap.rig_sigmas(model), model.cameras, sizes, conf.get("evidence"))
     focals = [
         combine_adjusted_focal(adjusted, FocalEvidence(pf.focal_px, pf.sigma_px), conf.get("evidence"))
         for adjusted, pf in zip(model.cameras, pair_focals, strict=True)
@@ -256,9 +269,47 @@ def calibrate_frames(
     calibration = _assemble(
         frames, model, focals, attitudes, (up, up_sigma_deg, used), span,
         scale * float(np.linalg.norm(model.T)), (scale_source, baseline_sigma), model_file, notes, timing,
-        sizes,
+        sizes, rig_sigmas,
     )  # fmt: skip
     return SequenceResult(calibration, model.reconstruction, trajectory, notes)
+
+
+def _pairs_only(frames, readings, sizes, starts, pair_focals, R, T, baseline_m, model_file, notes):
+    """The calibration where COLMAP could make nothing of the frames: each camera's focal length, R and T
+    combined over the pairs (as the adjustment's start), each frame's attitude its own reading, and no
+    trajectory or model. R's and T's sigmas are a typical pair's (the frames of one scene share their
+    error)."""
+    cameras = tuple(colmap.AdjustedCamera(s.focal_px, math.inf) for s in starts)
+    focals = [
+        combine_adjusted_focal(camera, FocalEvidence(pf.focal_px, pf.sigma_px))
+        for camera, pf in zip(cameras, pair_focals, strict=True)
+    ]
+    model = colmap.SequenceModel(None, cameras, R, T, {}, 0, 0, math.nan)
+    attitudes = {}
+    for reading in readings:
+        sides = {}
+        for side, g in zip(("left", "right"), reading.gravity, strict=True):
+            if g is not None:
+                roll, pitch = roll_pitch_from_gravity(g)
+                sides[side] = {"gravity_up": np.asarray(g).tolist(), "roll_deg": math.degrees(float(roll)),
+                               "pitch_deg": math.degrees(float(pitch))}  # fmt: skip
+        attitudes[reading.index] = sides
+    baseline = baseline_m if baseline_m is not None else float(np.median([r.baseline_m for r in readings]))
+    sigmas = [r.sigma_baseline_rel for r in readings if r.sigma_baseline_rel is not None]
+    scale = (
+        ("baseline", 0.0)
+        if baseline_m is not None
+        else ("learned", float(np.median(sigmas)) if sigmas else None)
+    )
+    rig_sigmas = (
+        float(np.median([r.sigma_rotation_deg for r in readings])),
+        float(np.median([r.sigma_direction_deg for r in readings])),
+    )
+    calibration = _assemble(
+        frames, model, focals, attitudes, (None, None, 0), None, baseline, scale, model_file, notes, {},
+        sizes, rig_sigmas,
+    )  # fmt: skip
+    return SequenceResult(calibration, None, [], notes)
 
 
 def _rotation_span(cam_from_world: dict[int, np.ndarray]) -> float:
@@ -275,16 +326,19 @@ def _sigma_dict(focal: SequenceFocal, height: int) -> dict[str, float]:
 
 
 def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model_file, notes, timing,
-              sizes) -> StereoCalibration:  # fmt: skip
+              sizes, rig_sigmas) -> StereoCalibration:  # fmt: skip
     """The rig's :class:`StereoCalibration` with the report's ``pose`` and ``sequence`` blocks."""
     (h_l, w_l), (h_r, w_r) = sizes
     K = [intrinsic_matrix(f.focal_px, w, h) for f, (h, w) in zip(focals, sizes, strict=True)]
+    for K_cam, camera in zip(K, model.cameras, strict=True):
+        if camera.principal_point_refined:
+            K_cam[0, 2], K_cam[1, 2] = camera.principal_point
     D = [np.array([c.k1, c.k2, 0.0, 0.0, 0.0]) if (c.k1 or c.k2) else np.zeros(0) for c in model.cameras]
     scale_source, baseline_sigma = scale
     up_world, up_sigma_deg, up_used = up
     T = model.T / np.linalg.norm(model.T) * baseline
     by_index = {f.index: f for f in frames}
-    sigma_rotation, sigma_direction = colmap.rig_sigmas(model)
+    sigma_rotation, sigma_direction = rig_sigmas
     pose = {
         "source": "sequence",
         "sigma_rotation_deg": _finite(sigma_rotation),
@@ -294,10 +348,10 @@ def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model
     }
     sequence = {
         "frames_read": len(frames),
-        "frames_registered": len(attitudes),
+        "frames_registered": len(model.cam_from_world),
         "models": model.models,
         "points": model.points,
-        "reprojection_error_px": model.reprojection_error_px,
+        "reprojection_error_px": _finite(model.reprojection_error_px),
         "rotation_span_deg": span,
         "focal_observable": all(f.observable for f in focals),
         "evidence": {
@@ -305,7 +359,12 @@ def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model
             "gravity": {"readings_used": up_used, "sigma_deg": up_sigma_deg},
             "scale": {"source": scale_source, "sigma_rel": baseline_sigma},
             "lens": {
-                side: {"k1": c.k1, "k2": c.k2, "sigma_k1": _finite(c.sigma_k1)}
+                side: {
+                    "k1": c.k1,
+                    "k2": c.k2,
+                    "principal_point": list(c.principal_point or ()),
+                    "principal_point_refined": c.principal_point_refined,
+                }
                 for side, c in zip(("left", "right"), model.cameras, strict=True)
             },
         },
@@ -391,11 +450,12 @@ def colmap_model_files(reconstruction) -> dict[str, bytes]:
 
 def write_sequence(out_dir: str | Path, result: SequenceResult, formats=None) -> list[Path]:
     """Every file of ``calibrate -o`` for the rig (``formats``: all by default), ``trajectory.txt`` and the
-    COLMAP model in ``sparse/0/``, written together and atomically."""
+    COLMAP model in ``sparse/0/`` (where COLMAP made one), written together and atomically."""
     from stereogeo_cli.io.atomic import write_files_atomically
     from stereogeo_cli.io.writers import DEFAULT_FORMATS, render_calibration
 
     files: dict[str, str | bytes] = dict(render_calibration(result.calibration, formats or DEFAULT_FORMATS))
-    files["trajectory.txt"] = trajectory_tum(result.trajectory)
-    files.update(colmap_model_files(result.reconstruction))
+    if result.reconstruction is not None:  # COLMAP made a model (else the pairs alone calibrated the rig)
+        files["trajectory.txt"] = trajectory_tum(result.trajectory)
+        files.update(colmap_model_files(result.reconstruction))
     return write_files_atomically(out_dir, files)

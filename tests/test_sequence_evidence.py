@@ -1,0 +1,122 @@
+"""The sequence's evidence combined: focal lengths (adjustment and pairs), one world up, each frame's
+attitude, and the trajectory file, on exact synthetic inputs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stereogeo_cli.geometry import gravity_from_roll_pitch, quaternion_to_rotation, rotation_from_axis_angle
+from stereogeo_cli.sequence.colmap import AdjustedCamera
+from stereogeo_cli.sequence.evidence import (
+    FocalEvidence,
+    combine_adjusted_focal,
+    frame_attitudes,
+    world_up,
+)
+from stereogeo_cli.sequence.run import PairReading, trajectory_tum
+
+
+def test_a_sharp_adjustment_carries_the_focal_length_and_is_called_observable():
+    pairs = FocalEvidence(400.0, 80.0)  # 20 %: a network's read of a real camera
+    sharp = combine_adjusted_focal(AdjustedCamera(500.0, 0.5), pairs)
+    assert sharp.observable
+    assert sharp.adjustment_weight > 0.98
+    assert sharp.focal_px == pytest.approx(500.0, rel=0.01)
+    # the floor: the principal point held at the centre keeps the sigma at about 2 %
+    assert sharp.sigma_px / sharp.focal_px == pytest.approx(0.02, rel=0.05)
+
+
+def test_a_free_focal_length_falls_back_to_the_pairs_with_their_sigma():
+    pairs = FocalEvidence(400.0, 80.0)
+    free = combine_adjusted_focal(AdjustedCamera(650.0, 650.0 * 3.0), pairs)  # the cost barely rose
+    assert not free.observable
+    assert free.adjustment_weight < 0.01
+    assert free.focal_px == pytest.approx(400.0, rel=0.01)
+    assert free.sigma_px == pytest.approx(80.0, rel=0.01)
+    none = combine_adjusted_focal(AdjustedCamera(650.0, math.inf), pairs)
+    assert none.focal_px == pytest.approx(400.0) and not none.observable
+
+
+def _readings_and_poses(up_world, count=30, noise_deg=1.0, seed=0):
+    """Frames turning about the world's up, each camera's up read with noise, the rig R a small turn."""
+    rng = np.random.default_rng(seed)
+    R_rig = rotation_from_axis_angle(np.radians([0.5, -1.0, 0.3]))
+    poses, readings = {}, []
+    for i in range(count):
+        yaw = rotation_from_axis_angle(up_world * math.radians(3.0 * i))
+        tilt = rotation_from_axis_angle(np.radians([10.0, 0.0, 5.0]))
+        cam_from_world = np.eye(4)
+        cam_from_world[:3, :3] = tilt @ yaw.T
+        poses[i] = cam_from_world
+        truth_left = cam_from_world[:3, :3] @ up_world
+        gravity = []
+        for g in (truth_left, R_rig @ truth_left):
+            noisy = g + rng.normal(0, math.radians(noise_deg), 3)
+            gravity.append(noisy / np.linalg.norm(noisy))
+        readings.append(
+            PairReading(
+                i,
+                (500.0, 500.0),
+                (50.0, 50.0),
+                tuple(gravity),
+                (noise_deg, noise_deg),
+                R_rig,
+                np.array([-0.1, 0, 0]),
+                0.1,
+                0.5,
+                False,
+            )  # fmt: skip
+        )
+    return readings, poses, R_rig
+
+
+def test_world_up_averages_the_frames_and_its_sigma_covers_the_error():
+    up = np.array([0.2, -0.9, 0.1])
+    up /= np.linalg.norm(up)
+    readings, poses, R_rig = _readings_and_poses(up)
+    found, sigma_deg, used = world_up(readings, poses, R_rig)
+    error = math.degrees(math.acos(np.clip(found @ up, -1, 1)))
+    assert used == 60
+    assert error < 0.5  # 60 readings of 1° each
+    assert error < 3 * sigma_deg
+    # the frames share one scene's error: the sigma does not shrink below a third of one reading's
+    assert sigma_deg >= 1.0 / 3.0 - 1e-9
+
+
+def test_world_up_leaves_out_a_reading_far_off():
+    up = np.array([0.0, -1.0, 0.0])
+    readings, poses, R_rig = _readings_and_poses(up, noise_deg=0.5)
+    readings[3].gravity = (np.array([1.0, 0.0, 0.0]), readings[3].gravity[1])  # a 90° blunder
+    found, _, used = world_up(readings, poses, R_rig)
+    assert used == 59
+    assert math.degrees(math.acos(np.clip(found @ up, -1, 1))) < 0.5
+
+
+def test_frame_attitudes_read_roll_and_pitch_from_the_pose():
+    roll, pitch = math.radians(4.0), math.radians(-7.0)
+    g = gravity_from_roll_pitch(roll, pitch)
+    # a camera whose rotation takes the world's z (up) to g
+    axis = np.cross([0.0, 0.0, 1.0], g)
+    angle = math.acos(float(np.clip(g[2], -1, 1)))
+    cam_from_world = np.eye(4)
+    cam_from_world[:3, :3] = rotation_from_axis_angle(axis / np.linalg.norm(axis) * angle)
+    attitude = frame_attitudes({0: cam_from_world}, np.array([0.0, 0.0, 1.0]), np.eye(3))[0]
+    assert attitude["left"]["roll_deg"] == pytest.approx(4.0, abs=1e-9)
+    assert attitude["left"]["pitch_deg"] == pytest.approx(-7.0, abs=1e-9)
+    assert attitude["right"] == attitude["left"]
+
+
+def test_the_trajectory_is_tum_with_the_camera_in_the_world():
+    world_from_cam = np.eye(4)
+    world_from_cam[:3, :3] = rotation_from_axis_angle(np.radians([0.0, 0.0, 30.0]))
+    world_from_cam[:3, 3] = [1.0, 2.0, 3.0]
+    text = trajectory_tum([(0.5, world_from_cam)])
+    header, line = text.strip().splitlines()
+    assert header.startswith("#")
+    stamp, tx, ty, tz, qx, qy, qz, qw = map(float, line.split())
+    assert (stamp, tx, ty, tz) == (0.5, 1.0, 2.0, 3.0)
+    R = quaternion_to_rotation(np.array([qw, qx, qy, qz]))
+    np.testing.assert_allclose(R, world_from_cam[:3, :3], atol=1e-8)
