@@ -26,10 +26,18 @@ from stereogeo_cli.geometry import rotation_angle
 SENSORS = ("left", "right")  # the image folders of the workspace, and COLMAP's image-name prefixes
 
 default_conf = {
-    "max_features": 4096,  # SIFT features per image
-    "overlap": 8,  # each frame is matched with this many following frames (and quadratically further ones)
+    "max_features": 1024,  # SIFT features per image
+    "overlap": 3,  # each frame is matched with this many following frames
+    "quadratic_overlap": True,  # and with the frames 2, 4, 8, … further on
     "min_model_frames": 3,  # a model of fewer registered frames is no calibration
     "threads": -1,  # COLMAP's threads (-1: all cores)
+    # overrides of COLMAP's IncrementalPipelineOptions: the global adjustments while frames are added
+    # (the last adjustment, below, is global anyway)
+    "mapping": {
+        "ba_global_frames_ratio": 1.4,
+        "ba_global_points_ratio": 1.4,
+        "ba_global_max_num_iterations": 25,
+    },
     "profile_step": 0.02,  # δ of the focal lengths' cost profile (adjust), in log f
     # the principal points are freed where the adjustment fixes the focal lengths better than this
     # (relative 1-sigma at the reprojection noise): the motion turned the rig enough to see them
@@ -128,6 +136,20 @@ def _pycolmap():
     return pycolmap
 
 
+def image_features(image: np.ndarray, max_features: int) -> tuple[np.ndarray, np.ndarray]:
+    """One image's SIFT keypoints as COLMAP stores them: positions [N x 2] float32 in COLMAP's pixels and
+    descriptors [N x 128] uint8. OpenCV's SIFT (the pipeline's detector) is several times faster than
+    COLMAP's on a CPU; its descriptors are L2-normalised and scaled by 512 as COLMAP's L2 ones are, so
+    COLMAP's matcher takes them as they are."""
+    from stereogeo_cli.fuse.matches import detect_features
+
+    found = detect_features(image, {"max_features": max_features, "max_side": max(image.shape[:2])})
+    if found.descriptors is None:
+        return np.zeros((0, 2), np.float32), np.zeros((0, 128), np.uint8)
+    descriptors = np.clip(np.rint(found.descriptors), 0, 255).astype(np.uint8)
+    return (found.xy + 0.5).astype(np.float32), descriptors
+
+
 def _matrix(rigid) -> np.ndarray:
     """A pycolmap Rigid3d as a [4 x 4] matrix."""
     M = np.eye(4)
@@ -170,11 +192,12 @@ def _rig_config(pycolmap, R: np.ndarray, T: np.ndarray):
 
 def match_frames(
     workspace: Path, starts: tuple[CameraStart, CameraStart], R: np.ndarray, T: np.ndarray, conf: dict,
-    stop=None,
+    stop=None, features: dict | None = None,
 ) -> Path:  # fmt: skip
     """Features and verified matches of the workspace's ``images/left`` and ``images/right`` frames in a
     COLMAP database (returned): each frame with its ``overlap`` successors in time, and the two images of
-    each frame with each other."""
+    each frame with each other. ``features``: per image name (``left/000000.png``) its
+    :func:`image_features` (else COLMAP extracts its own)."""
     pycolmap = _pycolmap()
     conf = {**default_conf, **conf}
     database = workspace / "database.db"
@@ -183,14 +206,30 @@ def match_frames(
     reader = pycolmap.ImageReaderOptions(camera_model=starts[0].model, camera_params=",".join(
         str(p) for p in starts[0].params()
     ))  # fmt: skip
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = conf["threads"]
-    extraction.sift.max_num_features = conf["max_features"]
-    _cancellable(
-        pycolmap.extract_features, database, workspace / "images",
-        camera_mode=pycolmap.CameraMode.PER_FOLDER, reader_options=reader,
-        extraction_options=extraction, device=pycolmap.Device.cpu, stop=stop,
-    )  # fmt: skip
+    if features is None:
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.num_threads = conf["threads"]
+        extraction.sift.max_num_features = conf["max_features"]
+        _cancellable(
+            pycolmap.extract_features, database, workspace / "images",
+            camera_mode=pycolmap.CameraMode.PER_FOLDER, reader_options=reader,
+            extraction_options=extraction, device=pycolmap.Device.cpu, stop=stop,
+        )  # fmt: skip
+    else:
+        pycolmap.import_images(
+            database, workspace / "images", camera_mode=pycolmap.CameraMode.PER_FOLDER, options=reader
+        )
+        db = pycolmap.Database.open(database)
+        try:
+            for image in db.read_all_images():
+                keypoints, descriptors = features[image.name]
+                db.write_keypoints(image.image_id, keypoints)
+                db.write_descriptors(
+                    image.image_id,
+                    pycolmap.FeatureDescriptors(pycolmap.FeatureExtractorType.SIFT, descriptors),
+                )
+        finally:
+            db.close()
     _write_cameras(pycolmap, database, starts)
     db = pycolmap.Database.open(database)
     try:
@@ -199,7 +238,9 @@ def match_frames(
         db.close()
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = conf["threads"]
-    pairing = pycolmap.SequentialPairingOptions(overlap=conf["overlap"], quadratic_overlap=True)
+    pairing = pycolmap.SequentialPairingOptions(
+        overlap=conf["overlap"], quadratic_overlap=conf["quadratic_overlap"]
+    )
     _cancellable(
         pycolmap.match_sequential, database, matching_options=matching, pairing_options=pairing,
         device=pycolmap.Device.cpu, stop=stop,
@@ -216,6 +257,8 @@ def _mapping_options(pycolmap, radial: bool, conf: dict):
     options.ba_refine_sensor_from_rig = True
     options.min_model_size = conf["min_model_frames"]
     options.random_seed = 0
+    for name, value in conf["mapping"].items():  # e.g. fewer global adjustments while frames are added
+        setattr(options, name, value)
     return options
 
 
@@ -371,7 +414,7 @@ def read_model(reconstruction, adjusted, models: int) -> SequenceModel:
 
 def reconstruct(
     workspace: str | os.PathLike, starts: tuple[CameraStart, CameraStart], R: np.ndarray, T: np.ndarray,
-    conf: dict | None = None, stop=None,
+    conf: dict | None = None, stop=None, features: dict | None = None,
 ) -> SequenceModel:  # fmt: skip
     """The whole bridge: match, map and adjust the frames in ``workspace/images/{left,right}/`` (the same
     file names in both, in time order), starting from ``starts`` and the rig (R, T). ``stop``: a
@@ -382,7 +425,7 @@ def reconstruct(
     """
     conf = {**default_conf, **(conf or {})}
     workspace = Path(workspace)
-    database = match_frames(workspace, starts, R, T, conf, stop)
+    database = match_frames(workspace, starts, R, T, conf, stop, features)
     radial = starts[0].radial or starts[1].radial
     models = map_frames(workspace, database, radial, conf, stop)
     if not models or models[0].num_reg_frames() < conf["min_model_frames"]:

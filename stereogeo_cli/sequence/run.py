@@ -43,6 +43,14 @@ from stereogeo_cli.sequence.evidence import (
 )
 from stereogeo_cli.sequence.sources import FramePair, FrameSource
 
+default_conf = {
+    # pairs calibrated as ``calibrate`` does, at most about this many (evenly spaced): the evidence of the
+    # pairs (focal lengths, lens, gravity, R, T, scale) to start and combine with COLMAP's
+    "max_pairs_calibrated": 25,
+    "colmap": {},  # overrides of stereogeo_cli.sequence.colmap.default_conf
+    "evidence": {},  # overrides of stereogeo_cli.sequence.evidence.default_conf
+}
+
 
 @dataclass
 class PairReading:
@@ -99,9 +107,10 @@ def _reading(index: int, result) -> PairReading:
     )
 
 
-def _write_frame(images: Path, frame: FramePair, file_name: str) -> None:
-    """The frame's two images as PNG files of the workspace (COLMAP reads files)."""
+def _write_frame(images: Path, frame: FramePair, file_name: str, features: dict, max_features: int) -> None:
+    """The frame's two images as PNG files of the workspace (COLMAP reads files), and their features."""
     for sensor, image in zip(colmap.SENSORS, (frame.left, frame.right), strict=True):
+        features[f"{sensor}/{file_name}"] = colmap.image_features(image, max_features)
         bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
         ok, data = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, 1])
         if not ok:
@@ -120,32 +129,49 @@ def _check_size(frame: FramePair, sizes: tuple | None) -> tuple:
     return now
 
 
+@dataclass
+class FrameReadings:
+    """What reading a source gave: the frames (without their pixels), the pairs' readings (for the pairs
+    calibrated: every ``stride``-th frame, and not those that failed), the image sizes ((h, w) left, right),
+    a warning per pair that failed, and every image's features for COLMAP (:func:`colmap.image_features`,
+    by image name)."""
+
+    frames: list[FramePair]
+    readings: list[PairReading]
+    sizes: tuple
+    warnings: list[str]
+    features: dict
+
+
 def read_frames(
     source: FrameSource, calibrator, images: Path, *, baseline_m: float | None,
-    progress: Callable[[int, int | None], None] | None = None, stop=None,
-) -> tuple[list[FramePair], list[PairReading], tuple, list[str]]:  # fmt: skip
-    """Write each frame of ``source`` into ``images/{left,right}/`` and calibrate it as a pair.
-
-    Returns the frames (without their pixels), the pairs' readings (frames whose pair could not be
-    calibrated have none: they still join the reconstruction), the image sizes ((h, w) left, right) and a
-    warning per frame that failed."""
+    progress: Callable[[int, int | None], None] | None = None, stop=None, conf: dict | None = None,
+) -> FrameReadings:  # fmt: skip
+    """Write each frame of ``source`` into ``images/{left,right}/``, detect its features, and calibrate
+    its pair as ``calibrate`` does: every pair of a sequence of up to ``max_pairs_calibrated``, else evenly
+    spaced pairs up to about that many (they are evidence to combine, and each costs a calibration)."""
+    conf = {**default_conf, **(conf or {})}
     for sensor in colmap.SENSORS:
         (images / sensor).mkdir(parents=True, exist_ok=True)
     frames: list[FramePair] = []
     readings: list[PairReading] = []
     warnings: list[str] = []
+    features: dict = {}
     sizes = None
     total = source.count()
+    stride = max(1, math.ceil(total / conf["max_pairs_calibrated"])) if total else 1
+    max_features = {**colmap.default_conf, **conf["colmap"]}["max_features"]
     for frame in source:
         if stop is not None and stop.requested:
             raise colmap.Cancelled()
         sizes = _check_size(frame, sizes)
-        _write_frame(images, frame, f"{frame.index:06d}.png")
-        try:
-            result = calibrator.calibrate(frame.left, frame.right, baseline_m=baseline_m)
-            readings.append(_reading(frame.index, result))
-        except CalibrationFailed as error:
-            warnings.append(f"frame {frame.name}: {error}")
+        _write_frame(images, frame, f"{frame.index:06d}.png", features, max_features)
+        if len(frames) % stride == 0:
+            try:
+                result = calibrator.calibrate(frame.left, frame.right, baseline_m=baseline_m)
+                readings.append(_reading(frame.index, result))
+            except CalibrationFailed as error:
+                warnings.append(f"frame {frame.name}: {error}")
         frames.append(FramePair(frame.index, frame.time, frame.name, np.empty(0), np.empty(0)))
         if progress is not None:
             progress(len(frames), total)
@@ -154,7 +180,7 @@ def read_frames(
         raise StereoGeoError(f"{source.description}: a sequence needs 2 frame pairs or more ({read} read)")
     if not readings:
         raise CalibrationFailed("no frame pair of the sequence could be calibrated")
-    return frames, readings, sizes, warnings
+    return FrameReadings(frames, readings, sizes, warnings, features)
 
 
 def _start(readings: list[PairReading], sizes: tuple, pinhole: bool) -> tuple:
@@ -208,9 +234,7 @@ def _align(model: colmap.SequenceModel, up: np.ndarray, scale: float) -> np.ndar
 
 
 def calibrate_frames(
-    frames: list[FramePair],
-    readings: list[PairReading],
-    sizes: tuple,
+    read: FrameReadings,
     workspace: Path,
     *,
     baseline_m: float | None,
@@ -221,13 +245,14 @@ def calibrate_frames(
     stop=None,
 ) -> SequenceResult:
     """Stages 2–4 on frames already written into ``workspace/images`` and read as pairs."""
+    frames, readings, sizes = read.frames, read.readings, read.sizes
     timing: dict[str, float] = {}
-    notes = list(warnings)
+    notes = [*warnings, *read.warnings]
     start = time.perf_counter()
     starts, pair_focals, R0, T0 = _start(readings, sizes, pinhole)
-    conf = conf or {}
+    conf = {**default_conf, **(conf or {})}
     try:
-        model = colmap.reconstruct(workspace, starts, R0, T0, conf.get("colmap"), stop)
+        model = colmap.reconstruct(workspace, starts, R0, T0, conf.get("colmap"), stop, read.features)
     except CalibrationFailed as error:  # a static rig, or views that share nothing: the pairs alone
         notes.append(f"{error}; the calibration is the pairs' combined")
         return _pairs_only(
@@ -411,15 +436,16 @@ def calibrate_sequence(
     temporary = workspace is None
     folder = Path(tempfile.mkdtemp(prefix="stereogeo-sequence-")) if temporary else Path(workspace)
     try:
-        frames, readings, sizes, warnings = read_frames(
-            source, calibrator, folder / "images", baseline_m=baseline_m, progress=progress, stop=stop
-        )
+        read = read_frames(
+            source, calibrator, folder / "images", baseline_m=baseline_m, progress=progress, stop=stop,
+            conf=conf,
+        )  # fmt: skip
         if progress is not None:
-            progress(len(frames), len(frames), "COLMAP: matching, mapping, adjusting")
+            progress(len(read.frames), len(read.frames), "COLMAP: matching, mapping, adjusting")
         model_file = (calibrator.model_path.name, calibrator.network.model_sha256)
         return calibrate_frames(
-            frames, readings, sizes, folder, baseline_m=baseline_m, pinhole=pinhole, model_file=model_file,
-            warnings=[*source.warnings, *warnings], conf=conf, stop=stop,
+            read, folder, baseline_m=baseline_m, pinhole=pinhole, model_file=model_file,
+            warnings=list(source.warnings), conf=conf, stop=stop,
         )  # fmt: skip
     except colmap.Cancelled:
         return None
