@@ -147,3 +147,39 @@ def test_an_interrupted_sequence_writes_nothing_and_exits_130(tmp_path, turning)
     assert "Traceback" not in stderr
     assert "nothing was written" in stderr
     assert not out.exists() or not any(out.rglob("*"))
+
+
+def test_a_side_by_side_video_calibrates_as_its_frames_do(tmp_path, turning):
+    """The turning sequence as one lossless side-by-side video: the same rig from the video's frames."""
+    import cv2
+    from test_sequence_sources import write_video
+
+    folder, truth, _, report = turning
+    frames = []
+    for name in sorted(p.name for p in (folder / "left").iterdir()):
+        left, right = (cv2.imread(str(folder / side / name))[..., ::-1] for side in ("left", "right"))
+        frames.append(np.concatenate([left, right], axis=1))
+    write_video(tmp_path / "sbs.mkv", frames, "FFV1", fps=8)
+    done = _stereogeo("calibrate-sequence", "--sbs", tmp_path / "sbs.mkv", "--json")
+    from_video = json.loads(done.stdout)
+    assert from_video["sequence"]["frames_read"] == 16
+    assert from_video["sequence"]["frames"][1]["time"] == pytest.approx(1 / 8)
+    for side in ("left", "right"):
+        assert from_video[side]["focal_px"] == pytest.approx(truth[side]["K"][0][0], rel=0.015)
+
+
+def test_a_bag_without_the_topic_is_one_line_and_exit_2(tmp_path):
+    from test_sequence_sources import ROS1, image_msg, write_bag
+
+    store = ROS1
+    image = np.zeros((80, 96), np.uint8)
+    write_bag(tmp_path / "run.bag", {"/cam0/image_raw": [image_msg(store, 10**9, image, "mono8")]})
+    done = subprocess.run(
+        [sys.executable, "-m", "stereogeo_cli", "calibrate-sequence", "run.bag", "--left-topic",
+         "/cam0/image_raw", "--right-topic", "/cam1/image_raw", "-o", "out"], cwd=tmp_path,
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "/cam1/image_raw" in lines[0]
+    assert not (tmp_path / "out").exists()

@@ -21,7 +21,7 @@ from stereogeo_cli.sequence.run import PairReading, trajectory_tum
 
 def test_a_sharp_adjustment_carries_the_focal_length_and_is_called_observable():
     pairs = FocalEvidence(400.0, 80.0)  # 20 %: a network's read of a real camera
-    sharp = combine_adjusted_focal(AdjustedCamera(500.0, 0.5), pairs)
+    sharp = combine_adjusted_focal(AdjustedCamera(500.0, 0.5), pairs, rotation_span_deg=40.0)
     assert sharp.observable
     assert sharp.adjustment_weight > 0.98
     assert sharp.focal_px == pytest.approx(500.0, rel=0.01)
@@ -31,13 +31,29 @@ def test_a_sharp_adjustment_carries_the_focal_length_and_is_called_observable():
 
 def test_a_free_focal_length_falls_back_to_the_pairs_with_their_sigma():
     pairs = FocalEvidence(400.0, 80.0)
-    free = combine_adjusted_focal(AdjustedCamera(650.0, 650.0 * 3.0), pairs)  # the cost barely rose
+    free = combine_adjusted_focal(AdjustedCamera(650.0, 650.0 * 3.0), pairs, 40.0)  # the cost barely rose
     assert not free.observable
     assert free.adjustment_weight < 0.01
     assert free.focal_px == pytest.approx(400.0, rel=0.01)
     assert free.sigma_px == pytest.approx(80.0, rel=0.01)
-    none = combine_adjusted_focal(AdjustedCamera(650.0, math.inf), pairs)
+    none = combine_adjusted_focal(AdjustedCamera(650.0, math.inf), pairs, 40.0)
     assert none.focal_px == pytest.approx(400.0) and not none.observable
+
+
+def test_without_rotation_a_sharp_adjustment_is_used_but_not_called_observable():
+    pairs = FocalEvidence(480.0, 96.0)
+    straight = combine_adjusted_focal(AdjustedCamera(500.0, 0.5), pairs, rotation_span_deg=0.8)
+    assert not straight.observable
+    assert straight.focal_px == pytest.approx(500.0, rel=0.01)
+
+
+def test_a_pairs_reading_far_from_a_sharp_adjustment_is_left_out():
+    # a car camera read as 313 px for 707: the adjustment's 690 ± 2 % is the measurement
+    far = combine_adjusted_focal(AdjustedCamera(690.0, 1.0), FocalEvidence(313.0, 78.0), 2.0)
+    assert far.pairs_left_out and far.adjustment_weight == 1.0
+    assert far.focal_px == pytest.approx(690.0)
+    near = combine_adjusted_focal(AdjustedCamera(690.0, 1.0), FocalEvidence(600.0, 150.0), 2.0)
+    assert not near.pairs_left_out and near.focal_px < 690.0
 
 
 def _readings_and_poses(up_world, count=30, noise_deg=1.0, seed=0):

@@ -38,10 +38,16 @@ default_conf = {
         "ba_global_points_ratio": 1.4,
         "ba_global_max_num_iterations": 25,
     },
+    # overrides of COLMAP's IncrementalMapperOptions: a drive straight ahead has no two frames 16° apart
+    # (COLMAP's default for the first pair) and moves forward: the first pair may be narrower and forward
+    "mapper": {"init_min_tri_angle": 4.0, "init_max_forward_motion": 0.99},
     "profile_step": 0.02,  # δ of the focal lengths' cost profile (adjust), in log f
     # the principal points are freed where the adjustment fixes the focal lengths better than this
     # (relative 1-sigma at the reprojection noise): the motion turned the rig enough to see them
     "principal_point_below": 0.01,
+    # ... and kept where freeing them lowers the cost by more than this share: a real camera's principal
+    # point 9 px off (EuRoC) explains 12 % of it, a render's exact centre 0.1-0.2 % (model noise)
+    "principal_point_min_fall": 0.01,
 }
 
 
@@ -259,6 +265,8 @@ def _mapping_options(pycolmap, radial: bool, conf: dict):
     options.random_seed = 0
     for name, value in conf["mapping"].items():  # e.g. fewer global adjustments while frames are added
         setattr(options, name, value)
+    for name, value in conf["mapper"].items():
+        setattr(options.mapper, name, value)
     return options
 
 
@@ -308,10 +316,13 @@ def adjust(reconstruction, radial: bool, conf: dict):
     barely rises, the sigma is wide.
 
     Where the motion fixes the focal lengths (relative sigma below ``principal_point_below``: the rig
-    turned), it fixes the principal points too: a last adjustment frees them (an off-centre principal point
-    held at the centre biases f and R). Elsewhere they stay at the image centre.
+    turned), it can show the principal points too: an adjustment frees them, and it is kept where the cost
+    falls by more than ``principal_point_min_fall`` of itself: an off-centre principal point held at the
+    centre biases f and R, and one freed without need adds noise to them (on thousands of points a fall
+    is always "significant": the share is the practical test). Elsewhere they stay at the image centre.
 
-    Returns the (left, right) :class:`AdjustedCamera` (the same relative sigma for both)."""
+    Returns the (left, right) :class:`AdjustedCamera` (the same relative sigma for both) and the adjusted
+    reconstruction (``reconstruction`` itself, or its copy with the principal points freed)."""
     pycolmap = _pycolmap()
     cost, dof = _bundle_adjust(reconstruction, radial, refine_focal=True)
     noise = 2.0 * cost / max(dof, 1)
@@ -326,9 +337,12 @@ def adjust(reconstruction, radial: bool, conf: dict):
         rises.append(_bundle_adjust(trial, radial, refine_focal=False)[0] - cost)
     rise = max(float(np.mean(rises)), 0.0)
     sigma_rel = delta / math.sqrt(2.0 * rise / noise) if rise > 0 and noise > 0 else math.inf
-    free_centre = sigma_rel < conf["principal_point_below"]
-    if free_centre:
-        _bundle_adjust(reconstruction, radial, refine_focal=True, refine_principal_point=True)
+    free_centre = False
+    if sigma_rel < conf["principal_point_below"]:
+        trial = pycolmap.Reconstruction(reconstruction)
+        freed = _bundle_adjust(trial, radial, refine_focal=True, refine_principal_point=True)[0]
+        if cost - freed > conf["principal_point_min_fall"] * cost:
+            reconstruction, free_centre = trial, True
     cameras = []
     for camera_id in _camera_ids(reconstruction):
         camera = reconstruction.cameras[camera_id]
@@ -337,7 +351,7 @@ def adjust(reconstruction, radial: bool, conf: dict):
         # COLMAP's principal point in stereogeo's pixels (pixel centres at integers)
         centre = (camera.principal_point_x - 0.5, camera.principal_point_y - 0.5)
         cameras.append(AdjustedCamera(params[0], params[0] * sigma_rel, k[0], k[1], centre, free_centre))
-    return cameras[0], cameras[1]
+    return (cameras[0], cameras[1]), reconstruction
 
 
 def rig_sigmas(model: SequenceModel) -> tuple[float, float]:
@@ -387,8 +401,9 @@ def _camera_ids(reconstruction) -> tuple[int, int]:
     return ids[SENSORS[0]], ids[SENSORS[1]]
 
 
-def read_model(reconstruction, adjusted, models: int) -> SequenceModel:
-    """The pieces of an adjusted reconstruction that the calibration needs."""
+def read_model(adjusted, models: int) -> SequenceModel:
+    """The pieces of an adjusted reconstruction (:func:`adjust`'s result) that the calibration needs."""
+    cameras, reconstruction = adjusted
     left_id, right_id = _camera_ids(reconstruction)
     cam_from_world: dict[str, np.ndarray] = {}
     right_from_world: dict[str, np.ndarray] = {}
@@ -402,7 +417,7 @@ def read_model(reconstruction, adjusted, models: int) -> SequenceModel:
     right_from_left = right_from_world[both[0]] @ np.linalg.inv(cam_from_world[both[0]])
     return SequenceModel(
         reconstruction=reconstruction,
-        cameras=adjusted,
+        cameras=cameras,
         R=right_from_left[:3, :3],
         T=right_from_left[:3, 3],
         cam_from_world=cam_from_world,
@@ -434,4 +449,4 @@ def reconstruct(
             "a sequence needs overlapping views of a textured scene"
         )
     largest = models[0]
-    return read_model(largest, adjust(largest, radial, conf), len(models))
+    return read_model(adjust(largest, radial, conf), len(models))

@@ -33,8 +33,15 @@ default_conf = {
     "principal_point_sigma_rel": 0.02,
     "principal_point_sigma_rel_free": 0.005,
     # the motion "fixes" the focal length where the adjustment's sigma is below this share of the pairs'
-    # (it then carries over 90 % of the combined weight)
+    # (it then carries over 90 % of the combined weight) and the rig turned by at least this much: without
+    # rotation, only the rig's own small left-right rotation ties the focal length, a thread that the
+    # adjustment's unmodelled errors can pull
     "observable_ratio": 1.0 / 3.0,
+    "observable_min_rotation_deg": 5.0,
+    # the pairs' reading is left out where it is this many combined sigmas from the adjustment's: a
+    # network's read of a real lens can be far off (a car camera's 313 px for 707), and a sharp
+    # adjustment is then the measurement
+    "pairs_reject_sigmas": 3.0,
     # a frame's up reading farther than this many of its sigmas from the robust centre is left out
     "up_reject_sigmas": 3.0,
     # the combined up's sigma is at least the frames' median sigma over this: the frames of one sequence
@@ -54,7 +61,8 @@ class FocalEvidence:
 @dataclass(frozen=True)
 class SequenceFocal:
     """One camera's focal length from the sequence: ``focal_px`` ± ``sigma_px`` combined from the
-    adjustment's and the pairs'; ``observable``: the motion fixed it (the adjustment carries it);
+    adjustment's and the pairs'; ``observable``: the motion fixed it (the adjustment carries it and the
+    rig turned);
     ``adjustment_weight``: the adjustment's share of the combined weight (0–1)."""
 
     focal_px: float
@@ -63,6 +71,7 @@ class SequenceFocal:
     adjustment_weight: float
     adjusted: FocalEvidence
     pairs: FocalEvidence
+    pairs_left_out: bool = False  # the pairs' reading disagreed with a sharp adjustment's
 
     def to_report(self) -> dict:
         return {
@@ -70,6 +79,7 @@ class SequenceFocal:
             "sigma_px": self.sigma_px,
             "observable": self.observable,
             "adjustment_weight": self.adjustment_weight,
+            "pairs_left_out": self.pairs_left_out,
             "adjustment": {"focal_px": self.adjusted.focal_px, "sigma_px": _finite(self.adjusted.sigma_px)},
             "pairs": {"focal_px": self.pairs.focal_px, "sigma_px": _finite(self.pairs.sigma_px)},
         }
@@ -79,9 +89,12 @@ def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def combine_adjusted_focal(adjusted, pairs: FocalEvidence, conf: dict | None = None) -> SequenceFocal:
-    """The adjustment's focal length (``adjusted.focal_px``, ``adjusted.sigma_focal_px`` from its
-    covariance, infinite where there is none) combined with the pairs' ``pairs`` in log f."""
+def combine_adjusted_focal(
+    adjusted, pairs: FocalEvidence, rotation_span_deg: float | None, conf: dict | None = None
+) -> SequenceFocal:
+    """The adjustment's focal length (``adjusted.focal_px``, ``adjusted.sigma_focal_px`` from its cost
+    profile, infinite where there is none) combined with the pairs' ``pairs`` in log f; observable where
+    the adjustment carries it and the rig turned by ``rotation_span_deg`` (None: unknown) enough."""
     conf = {**default_conf, **(conf or {})}
     f_a, f_p = adjusted.focal_px, pairs.focal_px
     floor = conf["focal_floor_rel_free_centre" if adjusted.principal_point_refined else "focal_floor_rel"]
@@ -91,11 +104,21 @@ def combine_adjusted_focal(adjusted, pairs: FocalEvidence, conf: dict | None = N
     w_p = 0.0 if not math.isfinite(s_p) else 1.0 / s_p**2
     if w_a + w_p == 0:
         return SequenceFocal(f_a, math.inf, False, 0.0, FocalEvidence(f_a, f_a * s_a), pairs)
+    apart = abs(math.log(f_a / f_p)) / math.hypot(s_a, s_p) if w_a and w_p else 0.0
+    pairs_left_out = apart > conf["pairs_reject_sigmas"]
+    if pairs_left_out:
+        w_p = 0.0
     log_f = (w_a * math.log(f_a) + w_p * math.log(f_p)) / (w_a + w_p)
     focal = math.exp(log_f)
     sigma = focal / math.sqrt(w_a + w_p)
-    observable = s_a < conf["observable_ratio"] * s_p
-    return SequenceFocal(focal, sigma, observable, w_a / (w_a + w_p), FocalEvidence(f_a, f_a * s_a), pairs)
+    observable = (
+        s_a < conf["observable_ratio"] * s_p
+        and rotation_span_deg is not None
+        and rotation_span_deg >= conf["observable_min_rotation_deg"]
+    )
+    return SequenceFocal(
+        focal, sigma, observable, w_a / (w_a + w_p), FocalEvidence(f_a, f_a * s_a), pairs, pairs_left_out
+    )
 
 
 def rig_sigmas_deg(

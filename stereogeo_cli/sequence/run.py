@@ -252,7 +252,7 @@ def calibrate_frames(
     starts, pair_focals, R0, T0 = _start(readings, sizes, pinhole)
     conf = {**default_conf, **(conf or {})}
     try:
-        model = colmap.reconstruct(workspace, starts, R0, T0, conf.get("colmap"), stop, read.features)
+        model = colmap.reconstruct(workspace, starts, R0, T0, conf["colmap"], stop, read.features)
     except CalibrationFailed as error:  # a static rig, or views that share nothing: the pairs alone
         notes.append(f"{error}; the calibration is the pairs' combined")
         return _pairs_only(
@@ -260,14 +260,10 @@ def calibrate_frames(
         )
     timing["colmap"] = (time.perf_counter() - start) * 1e3
     # the frames' own spread, in the reconstruction's own world (before it is aligned)
-    rig_sigmas = rig_sigmas_deg(colmap.rig_sigmas(model), model.cameras, sizes, conf.get("evidence"))
-    focals = [
-        combine_adjusted_focal(adjusted, FocalEvidence(pf.focal_px, pf.sigma_px), conf.get("evidence"))
-        for adjusted, pf in zip(model.cameras, pair_focals, strict=True)
-    ]
+    rig_sigmas = rig_sigmas_deg(colmap.rig_sigmas(model), model.cameras, sizes, conf["evidence"])
     by_index = {f"{f.index:06d}.png": f for f in frames}
     registered = {int(name[:6]): pose for name, pose in model.cam_from_world.items()}
-    up, up_sigma_deg, used = world_up(readings, registered, model.R, conf.get("evidence"))
+    up, up_sigma_deg, used = world_up(readings, registered, model.R, conf["evidence"])
     if up is None:  # no frame's gravity could be read: the first frame's image up stands in, unweighed
         first = registered[min(registered)]
         up = -first[:3, :3].T[:, 1]
@@ -277,6 +273,12 @@ def calibrate_frames(
     cam_from_world = {i: pose @ np.linalg.inv(to_output) for i, pose in registered.items()}
     attitudes = frame_attitudes(cam_from_world, np.array([0.0, 0.0, 1.0]), model.R)
     span = _rotation_span(cam_from_world)
+    focals = [
+        combine_adjusted_focal(adjusted, FocalEvidence(pf.focal_px, pf.sigma_px), span, conf["evidence"])
+        for adjusted, pf in zip(model.cameras, pair_focals, strict=True)
+    ]
+    if any(f.pairs_left_out for f in focals):
+        notes.append("the pairs' reading of the focal length disagrees with the adjustment's: left out")
     trajectory = [
         (by_index[f"{i:06d}.png"].time, np.linalg.inv(cam_from_world[i])) for i in sorted(cam_from_world)
     ]
@@ -288,8 +290,8 @@ def calibrate_frames(
     observable = all(f.observable for f in focals)
     if not observable:
         notes.append(
-            "the motion does not fix the focal length (too little rotation or too few frames): it comes "
-            "from the pairs' readings, with their sigma"
+            "the motion does not fix the focal length (too little rotation): the adjustment's and the pairs' "
+            "readings are combined by their sigmas"
         )
     calibration = _assemble(
         frames, model, focals, attitudes, (up, up_sigma_deg, used), span,
@@ -306,7 +308,7 @@ def _pairs_only(frames, readings, sizes, starts, pair_focals, R, T, baseline_m, 
     error)."""
     cameras = tuple(colmap.AdjustedCamera(s.focal_px, math.inf) for s in starts)
     focals = [
-        combine_adjusted_focal(camera, FocalEvidence(pf.focal_px, pf.sigma_px))
+        combine_adjusted_focal(camera, FocalEvidence(pf.focal_px, pf.sigma_px), None)
         for camera, pf in zip(cameras, pair_focals, strict=True)
     ]
     model = colmap.SequenceModel(None, cameras, R, T, {}, 0, 0, math.nan)
