@@ -36,6 +36,7 @@ from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.evaluate import camera_errors, sigma_coverage, weighted_quantile
 from stereogeo_cli.geometry import vfov_from_focal
 from stereogeo_cli.io import load_image
+from stereogeo_cli.metrics import auc
 
 LABELS = "labels.jsonl"
 SHIFT_COLUMNS = 8  # the pair's right image: the photo less this many leftmost columns
@@ -323,32 +324,8 @@ def weighted_auc(
     errors: np.ndarray, weights: np.ndarray, thresholds=THRESHOLDS, min_error: float | None = None
 ) -> list[float]:
     """:func:`stereogeo_cli.metrics.auc` with weights: the recall at error e is the weight of the errors
-    ≤ e over the total weight (non-finite errors count in the total and are never recalled); the curve
-    starts at (0, 0), or with ``min_error`` is held at the recall of ``min_error`` from 0 to it, and is
-    held flat up to each threshold; AUC@t = (1/t) ∫₀ᵗ recall(e) de (trapezoids). Equal weights give
-    ``metrics.auc``'s values."""
-    errors = np.asarray(errors, dtype=float).ravel()
-    weights = np.asarray(weights, dtype=float).ravel()
-    if errors.size == 0:
-        return [float("nan")] * len(thresholds)
-    errors = np.where(np.isfinite(errors), errors, np.inf)
-    order = np.argsort(errors, kind="stable")
-    errors, recall = errors[order], np.cumsum(weights[order]) / weights.sum()
-    if min_error is not None:
-        below = int(np.searchsorted(errors, min_error, side="right"))
-        held = recall[below - 1] if below else 0.0
-        errors = np.r_[0.0, min_error, errors[below:]]
-        recall = np.r_[held, held, recall[below:]]
-    else:
-        errors = np.r_[0.0, errors]
-        recall = np.r_[0.0, recall]
-    out = []
-    for t in thresholds:
-        last = int(np.searchsorted(errors, t, side="right"))
-        x = np.r_[errors[:last], t]
-        y = np.r_[recall[:last], recall[last - 1]]
-        out.append(float(np.trapezoid(y, x) / t))
-    return out
+    ≤ e over the total weight (non-finite errors count in the total and are never recalled)."""
+    return auc(errors, thresholds, min_error, weights=weights)
 
 
 def weighted_summary(errors: np.ndarray, weights: np.ndarray, min_error: float | None = None) -> dict:

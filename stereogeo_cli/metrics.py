@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def auc(errors: np.ndarray, thresholds=(1.0, 5.0, 10.0), min_error: float | None = None) -> list[float]:
+def auc(
+    errors: np.ndarray, thresholds=(1.0, 5.0, 10.0), min_error: float | None = None, weights=None
+) -> list[float]:
     """Area under the recall curve of ``errors`` up to each threshold, normalised to [0, 1].
 
     The recall at error e is the share of samples with error ≤ e; non-finite errors (failures) count in
@@ -13,15 +15,18 @@ def auc(errors: np.ndarray, thresholds=(1.0, 5.0, 10.0), min_error: float | None
     error below a threshold up to the threshold. With ``min_error`` (GeoCalib's evaluation uses 1° for
     roll, pitch and vFoV) the curve is held flat at the recall of ``min_error`` from 0 to ``min_error``:
     errors below it all count as equally good, so AUC@min_error is the share of errors ≤ min_error.
+    ``weights`` [N]: the recall is the weight of the errors ≤ e over the total weight (default: equal).
     """
     errors = np.asarray(errors, dtype=float).ravel()
     if errors.size == 0:
         return [float("nan")] * len(thresholds)
-    errors = np.sort(np.where(np.isfinite(errors), errors, np.inf))
-    recall = np.arange(1, len(errors) + 1) / len(errors)
+    weights = np.ones(errors.size) if weights is None else np.asarray(weights, dtype=float).ravel()
+    order = np.argsort(np.where(np.isfinite(errors), errors, np.inf), kind="stable")
+    errors = np.where(np.isfinite(errors), errors, np.inf)[order]
+    recall = np.cumsum(weights[order]) / weights.sum()
     if min_error is not None:
         below = int(np.searchsorted(errors, min_error, side="right"))
-        held = below / len(errors)
+        held = recall[below - 1] if below else 0.0
         errors = np.r_[0.0, min_error, errors[below:]]
         recall = np.r_[held, held, recall[below:]]
     else:

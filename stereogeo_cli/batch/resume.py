@@ -13,7 +13,6 @@ pair is calibrated again. docs/batch.md, "Interrupting and resuming".
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import os
@@ -23,19 +22,11 @@ from typing import Any
 import numpy as np
 
 from stereogeo_cli import __version__
+from stereogeo_cli.network.runtime import file_sha256
 
 MARKER = ".stereogeo-pair.json"
 EVIDENCE = ".stereogeo-evidence.npz"
 MARKER_VERSION = 1
-
-
-def sha256_file(path: str | os.PathLike) -> str:
-    """SHA-256 of a file (hex)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def model_identity(model: str | os.PathLike | None) -> dict[str, str | None]:
@@ -45,7 +36,7 @@ def model_identity(model: str | os.PathLike | None) -> dict[str, str | None]:
 
     path = Path(model) if model is not None else default_model_path()
     try:
-        digest = sha256_file(path)
+        digest = file_sha256(path)
     except OSError:
         digest = None
     return {"file": path.name, "sha256": digest}
@@ -65,7 +56,7 @@ def pair_options(model: dict, baseline_m: float | None, pinhole: bool, lines: bo
 
 def _inputs(left: Path, right: Path) -> dict[str, dict[str, str]]:
     return {
-        side: {"name": path.name, "sha256": sha256_file(path)}
+        side: {"name": path.name, "sha256": file_sha256(path)}
         for side, path in (("left", left), ("right", right))
     }
 
@@ -110,7 +101,7 @@ def write_pair_files(folder: Path, calibration, formats, evidence, inputs: tuple
         "options": options,
         "formats": list(dict.fromkeys(formats)),
         "inputs": _inputs(*inputs),
-        "files": {path.name: sha256_file(path) for path in written},
+        "files": {path.name: file_sha256(path) for path in written},
         "time_ms": time_ms,
         "report": report,
     }
@@ -133,7 +124,7 @@ def completed_pair(
         if not set(formats) <= set(marker["formats"]) or (evidence and EVIDENCE not in marker["files"]):
             return None
         for name, digest in marker["files"].items():
-            if "/" in name or sha256_file(folder / name) != digest:
+            if "/" in name or file_sha256(folder / name) != digest:
                 return None
         if marker["inputs"] != _inputs(*inputs):
             return None
