@@ -27,7 +27,6 @@ from stereogeo_cli.synth.sequence import (
 CONFIG = sequence_config(short_side=120, texture_size=128, texture_layers=24, depth=True)
 FRAMES = 5
 SEED = 3
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real-dev" / "sequences"
 
 
 @pytest.fixture(scope="module")
@@ -197,8 +196,8 @@ def test_distance_to_triangles():
     np.testing.assert_allclose(distance_to_triangles(points, square, 1.5), np.minimum(expected, 1.5))
 
 
-@pytest.mark.skipif(not REAL.is_dir(), reason="the real development sequences are not in this checkout")
-def test_reader_reads_the_real_sequences():
+def test_reader_reads_the_real_sequences(shared_data):
+    REAL = shared_data / "real-dev" / "sequences"
     euroc = read_sequence_ground_truth(REAL / "euroc_mh01_excitation_stereo")
     n = len(euroc["left_images"])
     assert n == len(euroc["right_images"]) == len(euroc["timestamps"]) > 0
