@@ -136,3 +136,27 @@ def test_the_trajectory_is_tum_with_the_camera_in_the_world():
     assert (stamp, tx, ty, tz) == (0.5, 1.0, 2.0, 3.0)
     R = quaternion_to_rotation(np.array([qw, qx, qy, qz]))
     np.testing.assert_allclose(R, world_from_cam[:3, :3], atol=1e-8)
+
+
+def test_vertical_segments_seen_from_many_poses_give_the_world_up():
+    from stereogeo_cli.sequence.evidence import combine_ups, up_from_segments
+
+    rng = np.random.default_rng(3)
+    up = np.array([0.05, 0.02, 1.0])
+    up /= np.linalg.norm(up)
+    # vertical segments: planes through the up; the rest: planes at any angle
+    horizontal = rng.normal(size=(300, 3))
+    vertical = np.cross(horizontal, up)
+    vertical /= np.linalg.norm(vertical, axis=1, keepdims=True)
+    vertical += rng.normal(0, math.radians(0.2), vertical.shape)
+    others = rng.normal(size=(300, 3))
+    normals = np.concatenate([vertical, others])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    owners = np.arange(len(normals)) % 30
+    start = up + np.array([0.03, -0.02, 0.0])  # the readings' up, about 2° off
+    found, information, used = up_from_segments(normals, owners, start)
+    assert math.degrees(math.acos(min(1.0, found @ up))) < 0.1
+    assert 300 <= used < 340  # the verticals, and the few others that happen to lie near the horizontal
+    combined, sigma, apart = combine_ups(start / np.linalg.norm(start), 2.0, found, information)
+    assert math.degrees(math.acos(min(1.0, combined @ up))) < 0.1 and sigma < 0.2 and apart < 3
+    assert up_from_segments(others[:20], owners[:20], start)[0] is None  # too few: not used

@@ -393,6 +393,35 @@ def rig_sigmas(model: SequenceModel) -> tuple[float, float]:
     )
 
 
+def segment_normals(reconstruction, segments: dict, min_length_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """The planes through each registered image's line segments and its camera centre, in the world.
+
+    ``segments``: per image name ``[N x 4]`` (x1, y1, x2, y2) in stereogeo's pixels. Each segment's ends
+    are unprojected through the image's adjusted camera (its lens included) and the plane's unit normal
+    r1 × r2 is turned into the world. A vertical segment's normal is perpendicular to the world's up.
+    Returns the normals [M x 3] and the index of the image each came from [M]."""
+    normals, owners = [], []
+    for image_id in reconstruction.reg_image_ids():
+        image = reconstruction.images[image_id]
+        found = segments.get(image.name)
+        if found is None or len(found) == 0:
+            continue
+        found = found[np.hypot(found[:, 2] - found[:, 0], found[:, 3] - found[:, 1]) >= min_length_px]
+        if len(found) == 0:
+            continue
+        camera = reconstruction.cameras[image.camera_id]
+        ends = found.reshape(-1, 2) + 0.5  # COLMAP's pixels
+        rays = np.asarray(camera.cam_ray_from_img(ends), float).reshape(-1, 2, 3)
+        n = np.cross(rays[:, 0], rays[:, 1])
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        world_from_cam = _matrix(image.cam_from_world())[:3, :3].T
+        normals.append(n @ world_from_cam.T)
+        owners.append(np.full(len(n), image_id))
+    if not normals:
+        return np.zeros((0, 3)), np.zeros(0, int)
+    return np.concatenate(normals), np.concatenate(owners)
+
+
 def _camera_ids(reconstruction) -> tuple[int, int]:
     """The camera ids of the left and the right sensor."""
     ids: dict[str, int] = {}

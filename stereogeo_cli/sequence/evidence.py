@@ -47,6 +47,12 @@ default_conf = {
     # the combined up's sigma is at least the frames' median sigma over this: the frames of one sequence
     # share much of the network's error (one scene, one camera), which does not average away
     "up_common_factor": 3.0,
+    # the vertical line segments of every registered image: a segment is taken as vertical where its
+    # plane's normal is within this angle of the horizontal (first around the readings' up, then around
+    # the segments' own, three times, down to the last angle)
+    "vertical_within_deg": (6.0, 3.0, 2.0),
+    "vertical_min_segments": 30,  # fewer vertical segments, or from fewer than 3 images: not used
+    "vertical_floor_deg": 0.05,  # the segments' up keeps at least this 1-sigma
 }
 
 
@@ -186,6 +192,53 @@ def world_up(readings, cam_from_world: dict[int, np.ndarray], R: np.ndarray, con
         sigma *= max(1.0, birge)
     sigma = max(sigma, float(np.median(sigmas[used])) / conf["up_common_factor"])
     return mean, math.degrees(sigma), int(used.sum())
+
+
+def up_from_segments(normals: np.ndarray, owners: np.ndarray, start: np.ndarray, conf: dict | None = None):
+    """The world's up from the planes of vertical line segments seen from many poses: the direction most
+    nearly perpendicular to their normals (the smallest eigenvector of Σ n nᵀ), the segments taken as
+    vertical around ``start`` and then around the estimate itself.
+
+    Its information [3 x 3] (inverse covariance, radians⁻², rank 2 across the up) is the normals' spread
+    across the up over their scatter about it, as if each image gave one independent reading (segments of
+    one image share its pose's error): a drive straight ahead, whose vertical segments are all seen from
+    one side, fixes the up's roll well and its pitch barely, and the information says so. Returns (up [3],
+    information, segments used), or (None, None, 0) where too few images show vertical segments."""
+    conf = {**default_conf, **(conf or {})}
+    up = np.asarray(start, float) / np.linalg.norm(start)
+    used = np.zeros(len(normals), bool)
+    for within in conf["vertical_within_deg"]:
+        used = np.abs(normals @ up) < math.sin(math.radians(within))
+        if used.sum() < conf["vertical_min_segments"] or len(set(owners[used].tolist())) < 3:
+            return None, None, 0
+        n = normals[used]
+        candidate = np.linalg.eigh(n.T @ n)[1][:, 0]
+        up = candidate if candidate @ up > 0 else -candidate
+    n = normals[used]
+    residual = n @ up
+    tangent = n - np.outer(residual, up)
+    per_image = len(n) / len(set(owners[used].tolist()))
+    variance = max(float(np.mean(residual**2)) * per_image, math.radians(conf["vertical_floor_deg"]) ** 2)
+    return up, tangent.T @ tangent / variance, int(used.sum())
+
+
+def combine_ups(up: np.ndarray, sigma_deg: float, found: np.ndarray, information: np.ndarray):
+    """The readings' up (isotropic ``sigma_deg``) and the segments' (``information``: see
+    :func:`up_from_segments`) combined in the plane across the readings' up. Returns (up, its 1-sigma in
+    degrees as the root mean of the two directions' variances, the Mahalanobis distance of the two in
+    sigmas)."""
+    basis = np.linalg.svd(up.reshape(1, 3))[2][1:].T  # [3 x 2], across up
+    offset = basis.T @ found  # the segments' up in that plane (small angles, radians)
+    from_readings = np.eye(2) / math.radians(sigma_deg) ** 2
+    from_segments = basis.T @ information @ basis
+    covariance = np.linalg.inv(from_readings + from_segments)
+    shift = covariance @ from_segments @ offset
+    combined = up + basis @ shift
+    apart = float(
+        offset @ np.linalg.solve(np.linalg.inv(from_readings) + np.linalg.pinv(from_segments), offset)
+    )
+    sigma = math.degrees(math.sqrt(float(np.trace(covariance)) / 2))
+    return combined / np.linalg.norm(combined), sigma, math.sqrt(max(apart, 0.0) / 2)
 
 
 def frame_attitudes(cam_from_world: dict[int, np.ndarray], up: np.ndarray, R: np.ndarray) -> dict[int, dict]:

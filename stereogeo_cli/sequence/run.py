@@ -31,14 +31,17 @@ from stereogeo_cli.batch.same_rig import chordal_mean, combine_focals
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.geometry import intrinsic_matrix, roll_pitch_from_gravity, rotation_angle
 from stereogeo_cli.io import StereoCalibration
+from stereogeo_cli.refine.lines import detect_segments
 from stereogeo_cli.refine.lm import vfov_sigma_deg
 from stereogeo_cli.sequence import colmap
 from stereogeo_cli.sequence.evidence import (
     FocalEvidence,
     SequenceFocal,
     combine_adjusted_focal,
+    combine_ups,
     frame_attitudes,
     rig_sigmas_deg,
+    up_from_segments,
     world_up,
 )
 from stereogeo_cli.sequence.sources import FramePair, FrameSource
@@ -47,6 +50,10 @@ default_conf = {
     # pairs calibrated as ``calibrate`` does, at most about this many (evenly spaced): the evidence of the
     # pairs (focal lengths, lens, gravity, R, T, scale) to start and combine with COLMAP's
     "max_pairs_calibrated": 25,
+    # line segments of every image for the world's up (evidence.up_from_segments), found on a copy of this
+    # short side, those of at least this share of it
+    "segments_short_side": 480,
+    "segments_min_length": 0.05,
     "colmap": {},  # overrides of stereogeo_cli.sequence.colmap.default_conf
     "evidence": {},  # overrides of stereogeo_cli.sequence.evidence.default_conf
 }
@@ -107,10 +114,17 @@ def _reading(index: int, result) -> PairReading:
     )
 
 
-def _write_frame(images: Path, frame: FramePair, file_name: str, features: dict, max_features: int) -> None:
-    """The frame's two images as PNG files of the workspace (COLMAP reads files), and their features."""
+def _write_frame(
+    images: Path, frame: FramePair, file_name: str, found: tuple[dict, dict], conf: dict
+) -> None:
+    """The frame's two images as PNG files of the workspace (COLMAP reads files), and their features and
+    line segments (``found``: the dicts they go into, by image name)."""
+    features, segments = found
+    max_features = {**colmap.default_conf, **conf["colmap"]}["max_features"]
     for sensor, image in zip(colmap.SENSORS, (frame.left, frame.right), strict=True):
-        features[f"{sensor}/{file_name}"] = colmap.image_features(image, max_features)
+        name = f"{sensor}/{file_name}"
+        features[name] = colmap.image_features(image, max_features)
+        segments[name] = detect_segments(image, conf["segments_short_side"])
         bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
         ok, data = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, 1])
         if not ok:
@@ -141,6 +155,7 @@ class FrameReadings:
     sizes: tuple
     warnings: list[str]
     features: dict
+    segments: dict  # per image name its line segments [N x 4] (x1, y1, x2, y2), stereogeo's pixels
 
 
 def read_frames(
@@ -157,15 +172,15 @@ def read_frames(
     readings: list[PairReading] = []
     warnings: list[str] = []
     features: dict = {}
+    segments: dict = {}
     sizes = None
     total = source.count()
     stride = max(1, math.ceil(total / conf["max_pairs_calibrated"])) if total else 1
-    max_features = {**colmap.default_conf, **conf["colmap"]}["max_features"]
     for frame in source:
         if stop is not None and stop.requested:
             raise colmap.Cancelled()
         sizes = _check_size(frame, sizes)
-        _write_frame(images, frame, f"{frame.index:06d}.png", features, max_features)
+        _write_frame(images, frame, f"{frame.index:06d}.png", (features, segments), conf)
         if len(frames) % stride == 0:
             try:
                 result = calibrator.calibrate(frame.left, frame.right, baseline_m=baseline_m)
@@ -180,7 +195,7 @@ def read_frames(
         raise StereoGeoError(f"{source.description}: a sequence needs 2 frame pairs or more ({read} read)")
     if not readings:
         raise CalibrationFailed("no frame pair of the sequence could be calibrated")
-    return FrameReadings(frames, readings, sizes, warnings, features)
+    return FrameReadings(frames, readings, sizes, warnings, features, segments)
 
 
 def _start(readings: list[PairReading], sizes: tuple, pinhole: bool) -> tuple:
@@ -268,6 +283,8 @@ def calibrate_frames(
         first = registered[min(registered)]
         up = -first[:3, :3].T[:, 1]
         notes.append("no frame's gravity could be read: the world's z axis is the first frame's image up")
+    readings_up = (up, up_sigma_deg, used)
+    up, up_sigma_deg, segments_up = _with_vertical_segments(model, read, readings_up, conf, notes)
     scale, scale_source, baseline_sigma = _scale(model, readings, baseline_m)
     to_output = _align(model, up, scale)
     cam_from_world = {i: pose @ np.linalg.inv(to_output) for i, pose in registered.items()}
@@ -294,11 +311,34 @@ def calibrate_frames(
             "readings are combined by their sigmas"
         )
     calibration = _assemble(
-        frames, model, focals, attitudes, (up, up_sigma_deg, used), span,
+        frames, model, focals, attitudes, (up, up_sigma_deg, used, readings_up[1], segments_up), span,
         scale * float(np.linalg.norm(model.T)), (scale_source, baseline_sigma), model_file, notes, timing,
         sizes, rig_sigmas,
     )  # fmt: skip
     return SequenceResult(calibration, model.reconstruction, trajectory, notes)
+
+
+def _with_vertical_segments(model, read: FrameReadings, readings_up: tuple, conf: dict, notes: list[str]):
+    """The world's up from the readings combined with the one the images' vertical line segments give
+    (:func:`evidence.up_from_segments`), by their sigmas, where the two agree within 3 combined sigmas.
+    Returns (up, its sigma in degrees, segments used)."""
+    up, sigma, _ = readings_up
+    if sigma is None:
+        return up, sigma, 0
+    (h, w), _ = read.sizes
+    normals, owners = colmap.segment_normals(
+        model.reconstruction, read.segments, conf["segments_min_length"] * min(h, w)
+    )
+    found, information, count = up_from_segments(normals, owners, up, conf["evidence"])
+    if found is None:
+        return up, sigma, 0
+    combined, combined_sigma, apart = combine_ups(up, sigma, found, information)
+    if apart > 3:
+        notes.append(
+            f"the vertical line segments' up is {apart:.1f} sigmas from the frames' gravity: left out"
+        )
+        return up, sigma, 0
+    return combined, combined_sigma, count
 
 
 def _pairs_only(frames, readings, sizes, starts, pair_focals, R, T, baseline_m, model_file, notes):
@@ -333,8 +373,8 @@ def _pairs_only(frames, readings, sizes, starts, pair_focals, R, T, baseline_m, 
         float(np.median([r.sigma_direction_deg for r in readings])),
     )
     calibration = _assemble(
-        frames, model, focals, attitudes, (None, None, 0), None, baseline, scale, model_file, notes, {},
-        sizes, rig_sigmas,
+        frames, model, focals, attitudes, (None, None, 0, None, 0), None, baseline, scale, model_file, notes,
+        {}, sizes, rig_sigmas,
     )  # fmt: skip
     return SequenceResult(calibration, None, [], notes)
 
@@ -362,7 +402,7 @@ def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model
             K_cam[0, 2], K_cam[1, 2] = camera.principal_point
     D = [np.array([c.k1, c.k2, 0.0, 0.0, 0.0]) if (c.k1 or c.k2) else np.zeros(0) for c in model.cameras]
     scale_source, baseline_sigma = scale
-    up_world, up_sigma_deg, up_used = up
+    up_world, up_sigma_deg, up_used, readings_sigma_deg, segments_used = up
     T = model.T / np.linalg.norm(model.T) * baseline
     by_index = {f.index: f for f in frames}
     sigma_rotation, sigma_direction = rig_sigmas
@@ -383,7 +423,12 @@ def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model
         "focal_observable": all(f.observable for f in focals),
         "evidence": {
             "focal": {side: f.to_report() for side, f in zip(("left", "right"), focals, strict=True)},
-            "gravity": {"readings_used": up_used, "sigma_deg": up_sigma_deg},
+            "gravity": {
+                "readings_used": up_used,
+                "readings_sigma_deg": readings_sigma_deg,
+                "vertical_segments_used": segments_used,
+                "sigma_deg": up_sigma_deg,
+            },
             "scale": {"source": scale_source, "sigma_rel": baseline_sigma},
             "lens": {
                 side: {
