@@ -3,7 +3,7 @@
 COLMAP (pycolmap) does all of the multi-view work: SIFT features, matching of each frame with its
 neighbours in time (and the two images of a frame with each other), incremental mapping with the two
 cameras as one rig (a left→right pose shared by every frame) and each camera's intrinsics shared by its
-frames, then one last bundle adjustment whose covariance tells how well the sequence fixes the focal
+frames, then one last bundle adjustment whose cost profile tells how well the sequence fixes the focal
 lengths. stereogeo's per-pair calibration only starts it: the focal lengths, the lens model and the rig's
 R, T are the initial values, nothing more.
 
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -420,6 +421,31 @@ def segment_normals(reconstruction, segments: dict, min_length_px: float) -> tup
     if not normals:
         return np.zeros((0, 3)), np.zeros(0, int)
     return np.concatenate(normals), np.concatenate(owners)
+
+
+def align_world(model: SequenceModel, up: np.ndarray, scale: float) -> np.ndarray:
+    """Move the reconstruction into the output's world: z along ``up``, the first registered frame's left
+    camera at the origin looking along +y, ``scale`` metres per unit. Returns that similarity [4 x 4]
+    (new world ← old world)."""
+    pycolmap = _pycolmap()
+    z = up / np.linalg.norm(up)
+    first = np.linalg.inv(model.cam_from_world[sorted(model.cam_from_world)[0]])  # world ← camera
+    x = np.cross(first[:3, 2], z)  # across the first camera's optical axis, level
+    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-6 else np.cross([0.0, 1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    rotation = np.stack([x, np.cross(z, x), z])
+    translation = -scale * rotation @ first[:3, 3]
+    model.reconstruction.transform(pycolmap.Sim3d(scale, pycolmap.Rotation3d(rotation), translation))
+    S = np.eye(4)
+    S[:3, :3], S[:3, 3] = scale * rotation, translation
+    return S
+
+
+def model_files(reconstruction) -> dict[str, bytes]:
+    """The COLMAP model (binary, as COLMAP writes it) as ``{"sparse/0/<file>": bytes}``."""
+    with tempfile.TemporaryDirectory(prefix="stereogeo-model-") as folder:
+        reconstruction.write_binary(folder)
+        return {f"sparse/0/{p.name}": p.read_bytes() for p in sorted(Path(folder).iterdir()) if p.is_file()}
 
 
 def _camera_ids(reconstruction) -> tuple[int, int]:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stereogeo_cli.fuse.assemble import finite
 from stereogeo_cli.geometry import roll_pitch_from_gravity
 
 default_conf = {
@@ -86,13 +87,9 @@ class SequenceFocal:
             "observable": self.observable,
             "adjustment_weight": self.adjustment_weight,
             "pairs_left_out": self.pairs_left_out,
-            "adjustment": {"focal_px": self.adjusted.focal_px, "sigma_px": _finite(self.adjusted.sigma_px)},
-            "pairs": {"focal_px": self.pairs.focal_px, "sigma_px": _finite(self.pairs.sigma_px)},
+            "adjustment": {"focal_px": self.adjusted.focal_px, "sigma_px": finite(self.adjusted.sigma_px)},
+            "pairs": {"focal_px": self.pairs.focal_px, "sigma_px": finite(self.pairs.sigma_px)},
         }
-
-
-def _finite(value: float) -> float | None:
-    return float(value) if math.isfinite(value) else None
 
 
 def combine_adjusted_focal(
@@ -241,19 +238,20 @@ def combine_ups(up: np.ndarray, sigma_deg: float, found: np.ndarray, information
     return combined / np.linalg.norm(combined), sigma, math.sqrt(max(apart, 0.0) / 2)
 
 
+def attitude(gravity: np.ndarray) -> dict:
+    """A camera's up vector [3] with its roll and pitch (degrees), as a frame of the report holds them."""
+    roll, pitch = roll_pitch_from_gravity(gravity)
+    return {
+        "gravity_up": np.asarray(gravity, float).tolist(),
+        "roll_deg": math.degrees(float(roll)),
+        "pitch_deg": math.degrees(float(pitch)),
+    }
+
+
 def frame_attitudes(cam_from_world: dict[int, np.ndarray], up: np.ndarray, R: np.ndarray) -> dict[int, dict]:
     """Each frame's up vector in its left and right camera and their roll and pitch (degrees)."""
     out = {}
     for index, pose in cam_from_world.items():
         left = pose[:3, :3] @ up
-        right = R @ left
-        cams = {}
-        for side, g in (("left", left), ("right", right)):
-            roll, pitch = roll_pitch_from_gravity(g)
-            cams[side] = {
-                "gravity_up": g.tolist(),
-                "roll_deg": math.degrees(float(roll)),
-                "pitch_deg": math.degrees(float(pitch)),
-            }
-        out[index] = cams
+        out[index] = {"left": attitude(left), "right": attitude(R @ left)}
     return out

@@ -2,13 +2,14 @@
 
 The stages, in order:
 
-1. every frame pair is calibrated as ``calibrate`` does (:class:`~stereogeo_cli.pipeline.Calibrator`):
-   its focal lengths, lens, gravity, R, T and learned baseline are the per-pair evidence;
+1. the frame pairs (up to about 25, evenly spaced) are calibrated as ``calibrate`` does
+   (:class:`~stereogeo_cli.pipeline.Calibrator`): their focal lengths, lens, gravity, R, T and learned
+   baseline are the per-pair evidence; every image's features and line segments are found;
 2. COLMAP reconstructs the frames with the two cameras as one rig, started from that evidence, and its
-   last bundle adjustment gives each camera's focal length with a covariance (``colmap.py``);
+   last bundle adjustment gives each camera's focal length with a sigma (``colmap.py``);
 3. the adjustment's focal lengths are combined with the pairs' by their sigmas (``evidence.py``), each
-   frame's gravity is rotated into the reconstruction's world and combined into one world up, and the
-   metric scale comes from ``--baseline`` or the pairs' learned baselines;
+   frame's gravity is rotated into the reconstruction's world and combined into one world up with the
+   one the vertical line segments give, and the metric scale comes from ``--baseline`` or the pairs';
 4. the world is turned so that its z axis points up and scaled to metres, and the rig's calibration, the
    report's ``sequence`` block, the left camera's trajectory and the COLMAP model are returned for writing.
 """
@@ -20,7 +21,7 @@ import shutil
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,14 +30,14 @@ import numpy as np
 
 from stereogeo_cli.batch.same_rig import chordal_mean, combine_focals
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
-from stereogeo_cli.geometry import intrinsic_matrix, roll_pitch_from_gravity, rotation_angle
+from stereogeo_cli.fuse.assemble import finite, focal_sigmas
+from stereogeo_cli.geometry import intrinsic_matrix, rotation_angle
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.refine.lines import detect_segments
-from stereogeo_cli.refine.lm import vfov_sigma_deg
 from stereogeo_cli.sequence import colmap
 from stereogeo_cli.sequence.evidence import (
     FocalEvidence,
-    SequenceFocal,
+    attitude,
     combine_adjusted_focal,
     combine_ups,
     frame_attitudes,
@@ -83,9 +84,8 @@ class SequenceResult:
     the left camera's trajectory (time, [4 x 4] world←camera in metres, z up) per registered frame."""
 
     calibration: StereoCalibration
-    reconstruction: Any  # pycolmap.Reconstruction, metric, z up
+    reconstruction: Any  # pycolmap.Reconstruction, metric, z up (None: the pairs alone calibrated the rig)
     trajectory: list[tuple[float, np.ndarray]]
-    warnings: list[str] = field(default_factory=list)
 
     def report(self) -> dict:
         return self.calibration.to_report()
@@ -215,37 +215,15 @@ def _start(readings: list[PairReading], sizes: tuple, pinhole: bool) -> tuple:
     return starts, focals, R, T
 
 
-def _scale(model: colmap.SequenceModel, readings: list[PairReading], baseline_m: float | None):
-    """Metres per reconstruction unit, where it came from, and the baseline's relative 1-sigma."""
-    length = float(np.linalg.norm(model.T))
+def _baseline(readings: list[PairReading], baseline_m: float | None) -> tuple[float, str, float | None]:
+    """The rig's baseline (metres), where it came from, and its relative 1-sigma: ``--baseline``, or else
+    the median of the pairs' learned ones with a typical pair's sigma (the frames of one scene share the
+    pose head's error on it, which does not average away)."""
     if baseline_m is not None:
-        return baseline_m / length, "baseline", 0.0
-    # the pairs' learned baselines: their median; its sigma is a typical pair's (the frames of one scene
-    # share the pose head's error on it, which does not average away)
-    metres = float(np.median([r.baseline_m for r in readings]))
+        return baseline_m, "baseline", 0.0
     sigmas = [s for r in readings if (s := r.sigma_baseline_rel) is not None and math.isfinite(s)]
-    return metres / length, "learned", float(np.median(sigmas)) if sigmas else None
-
-
-def _align(model: colmap.SequenceModel, up: np.ndarray, scale: float) -> np.ndarray:
-    """The similarity (4 x 4) that takes the reconstruction's world to the output's: z along ``up``, the
-    first registered frame's left camera at the origin, metres. Applied to the reconstruction too."""
-    import pycolmap
-
-    z = up / np.linalg.norm(up)
-    first = model.cam_from_world[sorted(model.cam_from_world)[0]]
-    forward = np.linalg.inv(first)[:3, 2]  # the first camera's optical axis in the world
-    x = np.cross(forward, z)
-    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-6 else np.cross([0.0, 1.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)  # the first camera looks along +y, level
-    rotation = np.stack([x, y, z])  # new_from_old
-    centre = np.linalg.inv(first)[:3, 3]
-    translation = -scale * rotation @ centre
-    model.reconstruction.transform(pycolmap.Sim3d(scale, pycolmap.Rotation3d(rotation), translation))
-    S = np.eye(4)
-    S[:3, :3], S[:3, 3] = scale * rotation, translation
-    return S
+    median_sigma = float(np.median(sigmas)) if sigmas else None
+    return float(np.median([r.baseline_m for r in readings])), "learned", median_sigma
 
 
 def calibrate_frames(
@@ -285,8 +263,8 @@ def calibrate_frames(
         notes.append("no frame's gravity could be read: the world's z axis is the first frame's image up")
     readings_up = (up, up_sigma_deg, used)
     up, up_sigma_deg, segments_up = _with_vertical_segments(model, read, readings_up, conf, notes)
-    scale, scale_source, baseline_sigma = _scale(model, readings, baseline_m)
-    to_output = _align(model, up, scale)
+    baseline, scale_source, baseline_sigma = _baseline(readings, baseline_m)
+    to_output = colmap.align_world(model, up, baseline / float(np.linalg.norm(model.T)))
     cam_from_world = {i: pose @ np.linalg.inv(to_output) for i, pose in registered.items()}
     attitudes = frame_attitudes(cam_from_world, np.array([0.0, 0.0, 1.0]), model.R)
     span = _rotation_span(cam_from_world)
@@ -312,10 +290,10 @@ def calibrate_frames(
         )
     calibration = _assemble(
         frames, model, focals, attitudes, (up, up_sigma_deg, used, readings_up[1], segments_up), span,
-        scale * float(np.linalg.norm(model.T)), (scale_source, baseline_sigma), model_file, notes, timing,
+        baseline, (scale_source, baseline_sigma), model_file, notes, timing,
         sizes, rig_sigmas,
     )  # fmt: skip
-    return SequenceResult(calibration, model.reconstruction, trajectory, notes)
+    return SequenceResult(calibration, model.reconstruction, trajectory)
 
 
 def _with_vertical_segments(model, read: FrameReadings, readings_up: tuple, conf: dict, notes: list[str]):
@@ -352,31 +330,22 @@ def _pairs_only(frames, readings, sizes, starts, pair_focals, R, T, baseline_m, 
         for camera, pf in zip(cameras, pair_focals, strict=True)
     ]
     model = colmap.SequenceModel(None, cameras, R, T, {}, 0, 0, math.nan)
-    attitudes = {}
-    for reading in readings:
-        sides = {}
-        for side, g in zip(("left", "right"), reading.gravity, strict=True):
-            if g is not None:
-                roll, pitch = roll_pitch_from_gravity(g)
-                sides[side] = {"gravity_up": np.asarray(g).tolist(), "roll_deg": math.degrees(float(roll)),
-                               "pitch_deg": math.degrees(float(pitch))}  # fmt: skip
-        attitudes[reading.index] = sides
-    baseline = baseline_m if baseline_m is not None else float(np.median([r.baseline_m for r in readings]))
-    sigmas = [r.sigma_baseline_rel for r in readings if r.sigma_baseline_rel is not None]
-    scale = (
-        ("baseline", 0.0)
-        if baseline_m is not None
-        else ("learned", float(np.median(sigmas)) if sigmas else None)
-    )
+    attitudes = {
+        r.index: {
+            side: attitude(g) for side, g in zip(("left", "right"), r.gravity, strict=True) if g is not None
+        }
+        for r in readings
+    }
+    baseline, scale_source, baseline_sigma = _baseline(readings, baseline_m)
     rig_sigmas = (
         float(np.median([r.sigma_rotation_deg for r in readings])),
         float(np.median([r.sigma_direction_deg for r in readings])),
     )
     calibration = _assemble(
-        frames, model, focals, attitudes, (None, None, 0, None, 0), None, baseline, scale, model_file, notes,
-        {}, sizes, rig_sigmas,
+        frames, model, focals, attitudes, (None, None, 0, None, 0), None, baseline,
+        (scale_source, baseline_sigma), model_file, notes, {}, sizes, rig_sigmas,
     )  # fmt: skip
-    return SequenceResult(calibration, None, [], notes)
+    return SequenceResult(calibration, None, [])
 
 
 def _rotation_span(cam_from_world: dict[int, np.ndarray]) -> float:
@@ -385,18 +354,14 @@ def _rotation_span(cam_from_world: dict[int, np.ndarray]) -> float:
     return max(math.degrees(rotation_angle(p @ poses[0].T)) for p in poses)
 
 
-def _sigma_dict(focal: SequenceFocal, height: int) -> dict[str, float]:
-    return {
-        "focal_px": focal.sigma_px,
-        "vfov_deg": vfov_sigma_deg(focal.focal_px, height, focal.sigma_px / focal.focal_px),
-    }
-
-
 def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model_file, notes, timing,
               sizes, rig_sigmas) -> StereoCalibration:  # fmt: skip
     """The rig's :class:`StereoCalibration` with the report's ``pose`` and ``sequence`` blocks."""
     (h_l, w_l), (h_r, w_r) = sizes
     K = [intrinsic_matrix(f.focal_px, w, h) for f, (h, w) in zip(focals, sizes, strict=True)]
+    sigmas = [
+        focal_sigmas(f.focal_px, h, f.sigma_px / f.focal_px) for f, (h, _) in zip(focals, sizes, strict=True)
+    ]
     for K_cam, camera in zip(K, model.cameras, strict=True):
         if camera.principal_point_refined:
             K_cam[0, 2], K_cam[1, 2] = camera.principal_point
@@ -408,8 +373,8 @@ def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model
     sigma_rotation, sigma_direction = rig_sigmas
     pose = {
         "source": "sequence",
-        "sigma_rotation_deg": _finite(sigma_rotation),
-        "sigma_direction_deg": _finite(sigma_direction),
+        "sigma_rotation_deg": finite(sigma_rotation),
+        "sigma_direction_deg": finite(sigma_direction),
         "rotation_deg": math.degrees(rotation_angle(model.R)),
         "sigma_baseline_rel": baseline_sigma,
     }
@@ -418,7 +383,7 @@ def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model
         "frames_registered": len(model.cam_from_world),
         "models": model.models,
         "points": model.points,
-        "reprojection_error_px": _finite(model.reprojection_error_px),
+        "reprojection_error_px": finite(model.reprojection_error_px),
         "rotation_span_deg": span,
         "focal_observable": all(f.observable for f in focals),
         "evidence": {
@@ -450,16 +415,11 @@ def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model
     }
     return StereoCalibration(
         K_left=K[0], K_right=K[1], image_size_left=(w_l, h_l), image_size_right=(w_r, h_r), R=model.R, T=T,
-        D_left=D[0], D_right=D[1], sigma_left=_sigma_dict(focals[0], h_l),
-        sigma_right=_sigma_dict(focals[1], h_r),
+        D_left=D[0], D_right=D[1], sigma_left=sigmas[0], sigma_right=sigmas[1],
         scale_source=scale_source, matches_found=model.points, matches_inliers=model.points, timing_ms=timing,
         model_file=model_file[0], model_sha256=model_file[1], notes="; ".join(notes),
         extra_report={"pose": pose, "sequence": sequence, "warnings": list(notes)},
     )  # fmt: skip
-
-
-def _finite(value: float | None) -> float | None:
-    return float(value) if value is not None and math.isfinite(value) else None
 
 
 def calibrate_sequence(
@@ -514,13 +474,6 @@ def trajectory_tum(trajectory: list[tuple[float, np.ndarray]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def colmap_model_files(reconstruction) -> dict[str, bytes]:
-    """The COLMAP model (binary, as COLMAP writes it) as ``{"sparse/0/<file>": bytes}``."""
-    with tempfile.TemporaryDirectory(prefix="stereogeo-model-") as folder:
-        reconstruction.write_binary(folder)
-        return {f"sparse/0/{p.name}": p.read_bytes() for p in sorted(Path(folder).iterdir()) if p.is_file()}
-
-
 def write_sequence(out_dir: str | Path, result: SequenceResult, formats=None) -> list[Path]:
     """Every file of ``calibrate -o`` for the rig (``formats``: all by default), ``trajectory.txt`` and the
     COLMAP model in ``sparse/0/`` (where COLMAP made one), written together and atomically."""
@@ -530,5 +483,5 @@ def write_sequence(out_dir: str | Path, result: SequenceResult, formats=None) ->
     files: dict[str, str | bytes] = dict(render_calibration(result.calibration, formats or DEFAULT_FORMATS))
     if result.reconstruction is not None:  # COLMAP made a model (else the pairs alone calibrated the rig)
         files["trajectory.txt"] = trajectory_tum(result.trajectory)
-        files.update(colmap_model_files(result.reconstruction))
+        files.update(colmap.model_files(result.reconstruction))
     return write_files_atomically(out_dir, files)
