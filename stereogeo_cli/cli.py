@@ -194,6 +194,20 @@ def make_data(
     preview: Annotated[
         Path | None, typer.Option(help="Write a contact sheet of 16 random pairs to this PNG file.")
     ] = None,
+    photos: Annotated[
+        Path | None,
+        typer.Option(
+            help="Instead of rendering, write training pairs from single real photographs: a folder with a "
+            "labels.jsonl (stereogeo evaluate's photo layout); each photo at three centred zooms, sharp "
+            "and softened."
+        ),
+    ] = None,
+    photo_split: Annotated[
+        str,
+        typer.Option(
+            help="With --photos: the half of benchmarks/real_photos_split.json to use (train, all)."
+        ),
+    ] = "train",
     progress: Annotated[
         bool | None,
         typer.Option("--progress/--no-progress", help="Show a progress bar (default: if a terminal)."),
@@ -202,6 +216,16 @@ def make_data(
     """Render a synthetic stereo dataset with exact ground truth (K, R, T, gravity per camera), or with
     --sequence one sequence of a moving rig (K, R, T and the pose of every frame)."""
     require_training_extra("make-data")
+    if photos is not None:
+        from stereogeo_cli.synth.photos import make_photo_pairs
+
+        if out is None:
+            raise StereoGeoError("give the dataset folder to write the photographs' pairs into")
+        if photo_split not in ("train", "all"):
+            raise StereoGeoError(f"--photo-split must be train or all, not {photo_split!r}")
+        written = make_photo_pairs(photos, out, None if photo_split == "all" else photo_split)
+        typer.echo(f"wrote {written} pairs to {out}")
+        return
     from stereogeo_cli.synth.cli_support import run_make_data
 
     run_make_data(

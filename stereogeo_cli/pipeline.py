@@ -404,7 +404,11 @@ class Calibrator:
         self.conf["scale"] = {**scale_conf, **self.conf["scale"]}
 
     def reported_sigma(
-        self, fit: CameraFit, focal_from_fields: bool = True, spread_rel: float = 0.0
+        self,
+        fit: CameraFit,
+        focal_from_fields: bool = True,
+        spread_rel: float = 0.0,
+        rotation_rel: float | None = None,
     ) -> dict[str, float]:
         """The sigmas to report for a fit: every sigma of the estimation weighs one piece of evidence against
         another; the ones reported are widened by the model's photo_sigma_scale, measured end to end on crops
@@ -412,12 +416,17 @@ class Calibrator:
         A focal length that was given or had an EXIF prior keeps its sigma: that scale was not measured with
         one. ``spread_rel``: a relative spread added in quadrature to the focal length's (two reads that
         disagree: ``_spread``), as is the conf's ``camera_bias_sigma`` for a focal length read from the
-        images."""
+        images. ``rotation_rel``: the relative sigma of the focal length a rotation from one centre reads
+        (``fuse/one_centre.py``), which the estimate combines with the images' or the given read: the sigma
+        reported is the two combined (their information adds)."""
         roll, pitch, vfov = self.photo_sigma_scale
         sigma = fit.sigma
         relative = sigma["focal_px"] / fit.focal_px * (vfov if focal_from_fields else 1.0)
         if focal_from_fields:
             spread_rel = math.hypot(spread_rel, self.conf["camera_bias_sigma"])
+        if rotation_rel is not None:
+            read = math.hypot(relative, spread_rel)
+            relative, spread_rel = 1.0 / math.sqrt(read**-2 + rotation_rel**-2), 0.0
         return {
             **focal_sigmas(fit.focal_px, fit.height, relative, spread_rel),
             "roll_deg": sigma["roll_deg"] * roll,
@@ -904,7 +913,11 @@ class Calibrator:
                 # this fit: the fields' latitude is read at the network's own focal scale, and held at the
                 # written one (moved by the matches) it tilts the gravity (EuRoC's roll 2.40° → 3.10°). The
                 # vanishing points' focal length freed instead tilts the pitch (docs/refine.md)
-                held = fit.focal_px if work.priors[side] else work.held[side]
+                # A focal length a rotation from one centre measured is held likewise.
+                measured = (
+                    pose.focal_read_sigma_rel is not None and pose.focal_read_sigma_rel[side] is not None
+                )
+                held = fit.focal_px if work.priors[side] or measured else work.held[side]
                 work.fits[side], work.used[side] = self._with_lines(
                     view, fit, segments, pose.distortion[side], held
                 )
@@ -959,15 +972,18 @@ class Calibrator:
                 "lengths read from the images; known focal lengths (--focal-left/--focal-right) make them "
                 "accurate"
             )
+        measured = pose.focal_read_sigma_rel or (None, None)
         cameras = tuple(
             CameraEstimate(
                 fit.focal_px,
                 fit.width,
                 fit.height,
                 fit.gravity_up,
-                self.reported_sigma(fit, own, self._spread(prior, scale) if own else 0.0),
+                self.reported_sigma(fit, own, self._spread(prior, scale) if own else 0.0, rotation_rel),
             )  # fmt: skip
-            for fit, prior, own, scale in zip(fits, priors, from_images, pose.focal_scale, strict=True)
+            for fit, prior, own, scale, rotation_rel in zip(
+                fits, priors, from_images, pose.focal_scale, measured, strict=True
+            )
         )
         # the edges' lens in the final K's coordinates, as the fusion's k is reported
         edge_k = [

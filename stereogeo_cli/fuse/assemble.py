@@ -91,6 +91,9 @@ def pose_report(pose: RelativePose, cameras: tuple[CameraEstimate, CameraEstimat
         # a turned rig's matches refined the two focal lengths' common scale: its relative 1-sigma from the
         # matches (None: not refined, the images' read of the focal lengths stands)
         "sigma_common_focal_rel": pose.sigma_common_focal,
+        # two views from one centre (source "rotation"): each focal length's relative 1-sigma as the rotation
+        # alone reads it, before it is combined with the images' (None: held, or the turn tells nothing)
+        "rotation_focal_sigma_rel": list(pose.focal_read_sigma_rel or (None, None)),
         # the fitted radial distortion: division-model k per camera (left, right) and its sigma
         "distortion_k": [float(k) for k in pose.distortion],
         "sigma_distortion_k": [finite(s) for s in pose.sigma_distortion],

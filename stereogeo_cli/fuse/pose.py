@@ -5,6 +5,7 @@ Convention (fixed): ``X_right = R @ X_left + T``, T in metres.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -13,6 +14,7 @@ import cv2
 import numpy as np
 
 from stereogeo_cli.fuse.matches import Matches
+from stereogeo_cli.fuse.one_centre import essential_gric, fit_rotation
 from stereogeo_cli.geometry.camera import corner_radius, division_limit, undistort_division
 from stereogeo_cli.geometry.epipolar import essential_matrix, fundamental_matrix
 from stereogeo_cli.geometry.gravity import (
@@ -68,6 +70,11 @@ default_conf = {
     # two raw rigs of the real test sets (the chessboard set, EuRoC) have theirs 1.4-2.9 % apart per axis
     # (RMS 2.1 %, so 1.5 % each; docs/refine.md, "The fusion's allowances").
     "principal_point_sigma": 0.015,
+    # recognise two views from one centre (a rotation explains the matches better than an essential
+    # matrix, by GRIC) and fit them as such: R and the focal lengths from the rotation (fuse/one_centre.py)
+    "one_centre": True,
+    "one_centre_min_noise_px": 0.02,  # the floor of the match noise the two are compared at (GRIC)
+    "one_centre_conf": {},  # overrides of stereogeo_cli.fuse.one_centre.default_conf
 }
 
 
@@ -92,6 +99,7 @@ class FusionStart:
     k: tuple[float, float]  # its lens (division-model k), in the normalised coordinates of its focal lengths
     focal_px: tuple[float, float]  # ... which are these (the given K's times its focal scales)
     noise_px: float  # its scale of the match noise (the robust loss's unit)
+    one_centre: bool = False  # its matches were explained by a rotation alone (fuse/one_centre.py)
 
 
 @dataclass
@@ -100,7 +108,8 @@ class RelativePose:
 
     R: np.ndarray
     t_direction: np.ndarray
-    source: str  # "matches" or "pose_head"
+    # "matches" (an essential matrix), "rotation" (views from one centre: fuse/one_centre.py) or "pose_head"
+    source: str
     matches_found: int = 0
     inliers: int = 0
     sigma_rotation_deg: float = float("inf")
@@ -126,6 +135,10 @@ class RelativePose:
     notes: list[str] = field(default_factory=list)
     # what a fusion of the same matches with other focal lengths starts from (None: from the pose head)
     start: FusionStart | None = None
+    # two views from one centre (source "rotation"): the relative 1-sigma of each camera's focal length as the
+    # rotation alone reads it (None: held, or read as nothing), which focal_scale combines with the given
+    # one's; None for every other pose
+    focal_read_sigma_rel: tuple[float | None, float | None] | None = None
 
     def translation(self, baseline_m: float) -> np.ndarray:
         """T [3] in metres for a baseline |T| in metres."""
@@ -344,6 +357,11 @@ def fuse_relative_pose(
         noise = max(1.4826 * float(np.median(np.abs(errors0[mask0]))), conf["min_noise_px"])
     else:  # its scale of the match noise, which the essential matrix's errors gave
         noise = again.noise_px
+    if again is not None and again.one_centre:
+        return _one_centre(
+            matches, K_left, K_right, noise, R0, priors, focal_sigma_rel, common_focal_sigma_rel, conf, found,
+            has_gravity, head_out,
+        )  # fmt: skip
     joint = _Joint(matches, K_left, K_right, noise, priors, common, prior_t, conf)
     if again is None:
         best, used_split, k_bounds = _choose(
@@ -352,6 +370,21 @@ def fuse_relative_pose(
     else:
         best, used_split, k_bounds = _fit_again(joint, again, R0, t0, mask0, split)
     pose = _pose_from_fit(joint, best, used_split, k_bounds, focal_sigma_rel)
+    if again is None and conf["one_centre"]:
+        # the rotation and the refined essential matrix compared at the noise of the more general model, the
+        # refined essential matrix's (the raw one's can be far too wide), and not at the fusion's floor: a far
+        # scene's parallax can lie below the floor and still tell a rig from a rotation
+        sampson_noise = max(
+            1.4826 * float(np.median(np.abs(best.errors[best.mask]))), conf["one_centre_min_noise_px"]
+        )
+        params = 5 + (used_split is not None) + (common is not None) + 2 * (k_bounds is not None)
+        gric_essential = essential_gric(best.errors, sampson_noise, params, conf["one_centre_conf"])
+        one = _one_centre(
+            matches, K_left, K_right, sampson_noise, best.state.R, priors, focal_sigma_rel,
+            common_focal_sigma_rel, conf, found, has_gravity, head_out, gric_essential,
+        )  # fmt: skip
+        if one is not None:
+            return one
     pose.matches_found, pose.turned, pose.notes = found, turned, notes
     pose.equal_focals = used_split is not split
     pose.start = FusionStart(
@@ -361,6 +394,68 @@ def fuse_relative_pose(
     )  # fmt: skip
     if has_gravity:
         pose.gravity_error_deg = _gravity_error_deg(pose.R, gravity_left, gravity_right)
+    return pose
+
+
+def _one_centre(
+    matches,
+    K_left,
+    K_right,
+    noise,
+    R_start,
+    priors,
+    focal_sigma_rel,
+    common,
+    conf,
+    found,
+    has_gravity,
+    head_out,
+    gric_essential: float | None = None,
+) -> RelativePose | None:
+    """The pair as two views from one centre (``fuse/one_centre.py``) where a rotation explains its matches
+    better than the essential matrix does (a lower GRIC than ``gric_essential``; None: an earlier fusion
+    decided so), else None. Its t is the pose head's (the matches see no baseline), with the prior's sigma."""
+    held = tuple(v is None or not np.isfinite(v) or v <= 0 for v in focal_sigma_rel)
+    own = np.array([0.0 if h else float(v) for v, h in zip(focal_sigma_rel, held, strict=True)])
+    cov = np.diag(own**2)
+    if common and not any(held):  # the fields' bias on the camera, common to both reads
+        cov += max(common**2 - own.mean() ** 2, 0.0)
+    rotation_priors = _Priors(
+        priors.gravity_left, priors.gravity_right, priors.gravity_sigma, priors.R, None,
+        priors.rotation_sigma, priors.direction_sigma,
+    )  # fmt: skip
+    fit = fit_rotation(
+        matches, K_left, K_right, noise, R_start, lambda R: rotation_priors.residuals(R, None), cov, held,
+        conf["principal_point_sigma"], conf["min_noise_px"], conf["one_centre_conf"],
+    )  # fmt: skip
+    if gric_essential is not None and fit.gric >= gric_essential:
+        return None
+    t = np.array([-1.0, 0.0, 0.0]) if priors.t is None else np.asarray(priors.t, float)
+    scales = np.exp(fit.log_scales)
+    sigmas = np.sqrt(np.diag(fit.scale_cov))
+    free = [float(s) for s, h in zip(sigmas, held, strict=True) if not h]
+    turn = math.degrees(rotation_angle(fit.R))
+    pose = RelativePose(
+        R=fit.R, t_direction=t / np.linalg.norm(t), source="rotation", matches_found=found,
+        inliers=int(fit.inliers.sum()),
+        sigma_rotation_deg=float(np.degrees(np.sqrt(np.trace(fit.rotation_cov)))),
+        sigma_direction_deg=float(conf["prior_direction_sigma_deg"]),
+        focal_scale=(float(scales[0]), float(scales[1])),
+        focal_read_sigma_rel=tuple(
+            None if h or not r <= 1.0 else float(r) for r, h in zip(fit.read_sigma, held, strict=True)
+        ),  # (over 1 in log f, a factor e: it reads nothing)
+        sigma_focal_considered=float(np.mean(free)) if free else 0.0,
+        notes=[
+            f"the matches are explained by a rotation alone ({turn:.1f}°): two views from one centre, or a "
+            "scene too far for the baseline to show; t is the pose head's"
+        ],
+    )  # fmt: skip
+    pose.start = FusionStart(
+        pose.R, pose.t_direction, fit.inliers, False, head_out, False, False, (), (0.0, 0.0),
+        (float(K_left[1, 1] * scales[0]), float(K_right[1, 1] * scales[1])), noise, one_centre=True,
+    )  # fmt: skip
+    if has_gravity:
+        pose.gravity_error_deg = _gravity_error_deg(pose.R, priors.gravity_left, priors.gravity_right)
     return pose
 
 
@@ -467,7 +562,7 @@ class _Joint:
             np.sum(np.minimum((errors / noise) ** 2, 9.0)) + np.sum(self.priors.residuals(R, t) ** 2)
             + focal_terms + k_terms
         )  # fmt: skip
-        return _Fit(score, _State(R, t, d, c, k), scales, hessian, mask)
+        return _Fit(score, _State(R, t, d, c, k), scales, hessian, mask, errors)
 
 
 def _distortion_bounds(K_left, K_right, conf) -> tuple | None:
@@ -712,6 +807,7 @@ class _Fit:
     scales: tuple[float, float]  # log focal scale per camera
     hessian: Callable[[], np.ndarray]  # the whole Gauss–Newton Hessian there (computed when called)
     mask: np.ndarray
+    errors: np.ndarray  # every match's Sampson error there, pixels
 
 
 def _in_front_share(R, t, left, right, K_left, K_right, min_parallax_rad: float = 0.0) -> tuple[float, int]:

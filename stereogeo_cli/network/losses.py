@@ -49,6 +49,9 @@ default_conf = {
     # ×2, as in the field losses) against the frozen teacher's on the pure-rotation pairs, the crops of
     # real panoramas: a fine-tune on renders is held to the teacher's reading of real photographs.
     "teacher_weight": 0.0,
+    # Real photographs without gravity (make-data --photos): L1 of the vFoV (radians) after the unrolled
+    # refiner, the only truth they have; with gravity they take the field and camera losses as renders do.
+    "photo_weight": 0.0,
 }
 
 
@@ -220,8 +223,15 @@ def compute_losses(
     losses: dict[str, torch.Tensor] = {}
     height, width = batch["left"].shape[-2:]
     has_gravity = torch.isfinite(batch["gravity"]).all(-1)  # [B x 2]
-    terms = {k: [] for k in ("up", "latitude", "confidence", "camera")}
+    terms = {k: [] for k in ("up", "latitude", "confidence", "camera", "photo")}
     for v, view in enumerate(("left", "right")):
+        focal_only = ~has_gravity[:, v] & torch.isfinite(batch["focal"][:, v])
+        if with_refiner and conf["photo_weight"] > 0 and focal_only.any():
+            sub = {k: t[focal_only] for k, t in out.items() if k.startswith(view)}
+            _, f_hat = refine_views(sub, view, height, width, conf)
+            fov_hat = 2 * torch.atan(height / (2 * f_hat))
+            fov_gt = 2 * torch.atan(height / (2 * batch["focal"][:, v][focal_only]))
+            terms["photo"].append((fov_hat - fov_gt).abs().mean())
         mask = has_gravity[:, v]
         if not mask.any():
             continue
@@ -292,13 +302,16 @@ def compute_losses(
         if nll:
             losses["depth"] = torch.stack(nll).mean()
     if teacher is not None and conf["teacher_weight"] > 0:
-        losses["teacher"] = teacher_loss(out, teacher, ~batch["has_translation"])
+        # the pure-rotation pairs with gravity: the crops of real panoramas (not photographs, which are
+        # learnt from their own truth)
+        held = ~batch["has_translation"] & has_gravity.all(-1)
+        losses["teacher"] = teacher_loss(out, teacher, held)
     weights = {
         "teacher": conf["teacher_weight"],
         "epipolar": conf["epipolar_weight"], "match": conf["match_weight"], "vote": conf["vote_weight"],
         "infinity": conf["infinity_weight"], "depth": conf["depth_weight"],
         "up": conf["up_weight"], "latitude": conf["latitude_weight"], "confidence": conf["confidence_weight"],
-        "camera": conf["camera_weight"], "rotation": conf["rotation_weight"],
+        "camera": conf["camera_weight"], "photo": conf["photo_weight"], "rotation": conf["rotation_weight"],
         "translation": conf["translation_weight"],
     }  # fmt: skip
     losses["total"] = sum(weights[k] * v for k, v in losses.items())
