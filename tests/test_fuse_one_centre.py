@@ -156,3 +156,40 @@ def test_crops_of_a_real_panorama_calibrate_as_one_centre(shared_data, tmp_path)
     turned = [e for e, source in zip(errors, sources, strict=True) if source == "rotation"]
     assert len(turned) >= 4, sources
     assert np.median(turned) < 0.15 and max(turned) < 0.3, turned
+
+
+def test_the_transfer_jacobian_is_the_derivative_of_its_residuals():
+    from stereogeo_cli.fuse.one_centre import _Transfer, default_conf
+
+    rng = np.random.default_rng(6)
+    K_left, K_right = intrinsic_matrix(500, *SIZE), intrinsic_matrix(520, *SIZE)
+    left = rng.uniform(0, SIZE[0], (50, 2))
+    right = left + rng.normal(0, 3, (50, 2))
+    R = rotation_from_axis_angle(np.radians([2.0, 5.0, 1.0]))
+
+    def priors(R):
+        return (R @ np.array([0.0, -1.0, 0.0]) - np.array([0.05, -1.0, 0.02])) / 0.01
+
+    for free in ([True, True], [False, True], [True, False]):
+        for shift in (None, np.array([13.0, 10.0])):
+            problem = _Transfer(
+                left,
+                right,
+                K_left,
+                K_right,
+                0.3,
+                np.array(free),
+                priors,
+                np.eye(sum(free)),
+                default_conf,
+                shift,
+            )
+            x = (R, np.array([0.1, -0.05]), np.array([2.0, -1.0]))
+            columns = []
+            for k in range(problem.size):
+                step = np.zeros(problem.size)
+                step[k] = 1e-6
+                moved = problem.residuals(problem.moved(x, step)) - problem.residuals(problem.moved(x, -step))
+                columns.append(moved / 2e-6)
+            numeric = np.stack(columns, axis=1)
+            assert np.abs(problem.jacobian(x) - numeric).max() < 1e-6 * np.abs(numeric).max()

@@ -41,7 +41,7 @@ from stereogeo_cli.refine.levenberg import Settings, levenberg_marquardt
 default_conf = {
     "start_threshold_px": 3.0,  # RANSAC threshold of the homography the fit may start from, pixels
     "transfer_scale_px": 1.0,  # Huber scale of the transfer error, pixels (as the fusion's Sampson scale)
-    "iterations": 30,
+    "iterations": 15,  # Levenberg–Marquardt steps tried per fit (as the fusion's)
     # the 1-sigma (log f) of the weak prior that keeps the rotation's own read of a focal length defined
     # where the turn says nothing of it; far wider than any read it is combined with
     "free_focal_sigma": 1.0,
@@ -158,18 +158,58 @@ class _Transfer:
         return float(np.sum(data) + priors @ priors)
 
     def hessian(self, x) -> np.ndarray:
-        """The Gauss–Newton Hessian (Huber weights) over the step's coordinates, by central differences."""
+        """The Gauss–Newton Hessian (Huber weights) over the step's coordinates."""
         return self.normal_equations(x)[0]
 
-    def normal_equations(self, x):
+    def jacobian(self, x) -> np.ndarray:
+        """∂residuals/∂step [2N + P x size]: the transfer errors' analytically (rotation update ω with
+        R ← exp(ω)·R, the free log scales, the shift), the priors' by central differences."""
+        R, scales, shift = x
+        n = len(self.left)
+        rays = self.rays * np.array([math.exp(-scales[0]), math.exp(-scales[0]), 1.0])
+        X = rays @ R.T
+        z = np.where(np.abs(X[:, 2]) < 1e-12, 1e-12, X[:, 2])
+        f = np.array([self.K_right[0, 0], self.K_right[1, 1]]) * math.exp(scales[1])
+        projected = X[:, :2] / z[:, None]
+
+        def through_projection(dX: np.ndarray) -> np.ndarray:  # dX [N x 3] → d(predicted pixel) [N x 2]
+            return f * (dX[:, :2] - projected * dX[:, 2:3]) / z[:, None]
+
         columns = []
-        for i in range(self.size):
-            step = np.zeros(self.size)
-            step[i] = 1e-6
-            columns.append(
-                (self.residuals(self.moved(x, step)) - self.residuals(self.moved(x, -step))) / 2e-6
-            )
-        J = np.stack(columns, axis=1)
+        for axis in range(3):  # d(exp(ω)·X)/dω_axis = e_axis × X
+            e = np.zeros(3)
+            e[axis] = 1.0
+            columns.append(through_projection(np.cross(e, X)))
+        free = np.flatnonzero(self.free)
+        for side in free:
+            if side == 0:  # the left rays' x, y shrink with the left focal length
+                columns.append(through_projection(-(rays * np.array([1.0, 1.0, 0.0])) @ R.T))
+            else:
+                columns.append(f * projected)
+        if self.shift_sigma is not None:
+            columns += [np.tile([1.0, 0.0], (n, 1)), np.tile([0.0, 1.0], (n, 1))]
+        J_data = -np.stack([c.reshape(-1) for c in columns], axis=1) / self.unit  # error = right − predicted
+        # the priors: the pose's on R by central differences; the scales' and the shift's are linear
+        pose = []
+        for axis in range(3):
+            step = np.zeros(3)
+            step[axis] = 1e-6
+            turned = [self.prior_residuals(rotation_from_axis_angle(sign * step) @ R) for sign in (1.0, -1.0)]
+            pose.append((turned[0] - turned[1]) / 2e-6)
+        on_R = len(pose[0])
+        J_priors = np.zeros((len(self.priors(x)), self.size))
+        J_priors[:on_R, :3] = np.stack(pose, axis=1)
+        row, column = on_R, 3
+        if self.scale_prior is not None:
+            J_priors[row : row + len(free), column : column + len(free)] = self.scale_prior
+            row += len(free)
+        column += len(free)
+        if self.shift_sigma is not None:
+            J_priors[row : row + 2, column : column + 2] = np.diag(1.0 / self.shift_sigma)
+        return np.vstack([J_data, J_priors])
+
+    def normal_equations(self, x):
+        J = self.jacobian(x)
         r, w = self.residuals(x), self.weights(x)
         return J.T @ (J * w[:, None]), J.T @ (w * r)
 
@@ -218,7 +258,7 @@ def fit_rotation(
     left, right = np.asarray(matches.left, float), np.asarray(matches.right, float)
     free = ~np.asarray(held, dtype=bool)
     n = int(free.sum())
-    settings = Settings(max_iterations=conf["iterations"], lambda_init=1e-3, relative_tolerance=1e-9)
+    settings = Settings(max_iterations=conf["iterations"], lambda_init=1e-3, relative_tolerance=1e-6)
     weak = np.eye(n) / conf["free_focal_sigma"] if n else None
     size = np.array([2.0 * (K_right[0, 2] + 0.5), 2.0 * (K_right[1, 2] + 0.5)])
     shift_sigma = math.sqrt(2.0) * principal_point_sigma * size
