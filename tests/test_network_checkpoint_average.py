@@ -112,3 +112,14 @@ def test_checkpoints_of_different_models_or_bad_weights_are_refused(tmp_path):
         assert out.read_bytes() == b"keep me"  # nothing already there is lost
     folder = runner.invoke(app, ["average-checkpoints", str(a_path), str(a_path), "-o", str(tmp_path)])
     assert folder.exit_code != 0 and "is a folder" in folder.output
+
+
+def test_a_fine_tune_averages_with_the_checkpoint_it_started_from(tmp_path):
+    """A fine-tune's conf spells out defaults its start left implicit and has ``pretrained`` off: the same
+    model, and the average is taken."""
+    start, _ = _checkpoint(tmp_path / "start.pt", 1)
+    tuned, _ = _checkpoint(tmp_path / "tuned.pt", 2, conf={**SMALL, "input_blur_px": 0.0, "pretrained": True})
+    average_checkpoints([start, tuned], [1.0, 1.0])
+    blurred, _ = _checkpoint(tmp_path / "blurred.pt", 3, conf={**SMALL, "input_blur_px": 1.5})
+    with pytest.raises(StereoGeoError, match="different model"):
+        average_checkpoints([start, blurred], [1.0, 1.0])

@@ -87,6 +87,14 @@ def _built(checkpoint: dict[str, Any], what: str) -> StereoGeoNet:
 LEGACY_CONF: dict[str, Any] = {"pose_match_stride": 16, "pose_scale_votes": False}
 
 
+def _architecture(checkpoint: dict) -> dict[str, Any]:
+    """The model a checkpoint holds: its conf with the defaults it leaves out, less ``pretrained`` (which
+    decides only the encoder's first weights: a fine-tune started from a checkpoint has it off)."""
+    conf = {**StereoGeoNet.default_conf, **LEGACY_CONF, **checkpoint.get("conf", {})}
+    conf.pop("pretrained", None)
+    return conf
+
+
 def model_from_checkpoint(checkpoint: dict[str, Any]) -> StereoGeoNet:
     """Build the model of a checkpoint dict and load its weights (strict), in eval mode."""
     model = StereoGeoNet({**LEGACY_CONF, **checkpoint["conf"], "pretrained": False})
@@ -150,7 +158,7 @@ def average_checkpoints(paths: list[str | os.PathLike], weights: list[float]) ->
         checkpoints.append(checkpoint)
     first = checkpoints[0]
     for path, checkpoint in zip(paths[1:], checkpoints[1:], strict=True):
-        if {**LEGACY_CONF, **checkpoint.get("conf", {})} != {**LEGACY_CONF, **first.get("conf", {})}:
+        if _architecture(checkpoint) != _architecture(first):
             raise StereoGeoError(f"{path} is a different model from {paths[0]} (their 'conf' entries differ)")
         own, other = first["model"], checkpoint["model"]
         if set(own) != set(other) or any(tuple(own[k].shape) != tuple(other[k].shape) for k in own):
