@@ -1,4 +1,5 @@
-"""The rig's relative pose: essential matrix from matches, refined jointly with gravity and the pose head.
+"""The rig's relative pose: essential matrix from matches, refined jointly with gravity and the pose head;
+or, where a rotation explains the matches better, two views from one centre (``fuse/one_centre.py``).
 
 Convention (fixed): ``X_right = R @ X_left + T``, T in metres.
 """
