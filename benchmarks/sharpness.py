@@ -27,19 +27,19 @@ import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.evaluate import weighted_quantile
-from stereogeo_cli.evaluate_photos import calibrate_photo, camera_weights, photo_pair, read_labels, select
+from stereogeo_cli.evaluate_photos import (
+    calibrate_photo,
+    camera_weights,
+    photo_pair,
+    read_labels,
+    select,
+    soften,
+)
 from stereogeo_cli.geometry import vfov_from_focal
 from stereogeo_cli.io import load_image
 from stereogeo_cli.pipeline import Calibrator
 
 GOAL_DEG = 2.0
-
-
-def soften(image: np.ndarray, upsample: int = cv2.INTER_LINEAR) -> np.ndarray:
-    """The image resized down by 2 (INTER_AREA) and back up to its own size: the same view, half as sharp."""
-    height, width = image.shape[:2]
-    small = cv2.resize(image, (max(1, width // 2), max(1, height // 2)), interpolation=cv2.INTER_AREA)
-    return cv2.resize(small, (width, height), interpolation=upsample)
 
 
 def read_vfov(calibrator: Calibrator, image: np.ndarray, fields_only: bool) -> float:
@@ -71,7 +71,7 @@ def main() -> None:
         try:
             image = load_image(args.folder / record["file"])
             sharp = read_vfov(calibrator, image, args.fields_only)
-            soft = read_vfov(calibrator, soften(image, upsample), args.fields_only)
+            soft = read_vfov(calibrator, soften(image, upsample=upsample), args.fields_only)
         except (StereoGeoError, CalibrationFailed) as error:
             row["error"] = str(error)
         else:

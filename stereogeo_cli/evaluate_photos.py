@@ -30,6 +30,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
@@ -198,6 +199,19 @@ def naive_errors(record: dict) -> dict:
 def photo_pair(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The stereo pair a single photograph is calibrated as: (photo, photo less its 8 leftmost columns)."""
     return image, np.ascontiguousarray(image[:, SHIFT_COLUMNS:])
+
+
+def soften(image: np.ndarray, factor: float = 2.0, upsample: int | None = None) -> np.ndarray:
+    """The image resized down by ``factor`` (area filter) and back up to its own size (``upsample``,
+    default linear): the same view and geometry, less sharp. Sharpness must not tell the lens: the
+    sharpness benchmark reads photographs both ways, and ``make-data --photos`` trains on both."""
+    height, width = image.shape[:2]
+    small = cv2.resize(
+        image, (max(1, int(width / factor)), max(1, int(height / factor))), interpolation=cv2.INTER_AREA
+    )
+    return cv2.resize(
+        small, (width, height), interpolation=cv2.INTER_LINEAR if upsample is None else upsample
+    )
 
 
 def calibrate_photo(calibrator, image: np.ndarray):

@@ -14,16 +14,18 @@ the model's variety, d its dimension, k the model's parameters, λ₁ = ln 4, λ
 model with the lower GRIC is kept. A rotation's e² is half the squared transfer error (both pixels are
 noisy); the essential matrix's is the squared Sampson error.
 
-**Fitted**: R and the two cameras' log focal scales (those not held), minimising the robust transfer error
-with the pose priors (gravity shared by the cameras, the pose head's rotation), the principal points held
-at the image centres as everywhere in the calibration. What a rotation tells of the focal lengths depends on
-where the principal points really are: a small turn moves every pixel by about the same amount, and a
-principal point a few pixels off does the same. So the focal lengths' read from the rotation takes in the
-principal points' uncertainty (``principal_point_sigma`` of each image's size, per axis) as a considered
-parameter, and is then combined with the fields' read (the caller's prior covariance) by their covariances;
-R is fitted again at the combined focal lengths, and its covariance takes in theirs. A turn about the
-optical axis, or none (the evaluation's pair of a photo and its crop), tells nothing of them: the fields'
-read stands.
+**Fitted**: R, the two cameras' log focal scales (those not held) and the right principal point's shift from
+the image centre, minimising the robust transfer error with the pose priors (gravity shared by the cameras,
+the pose head's rotation) and a zero-mean prior on the shift (``principal_point_sigma`` of the image's size
+per axis, for each camera: √2 of it for their difference). What a rotation tells of the focal lengths
+depends on where the principal points really are: a small turn moves every pixel by about the same amount,
+and a principal point a few pixels off does the same. So the rotation's read of the focal lengths is the
+fit's information on them with R and the shift marginalised (a Schur complement), with a floor for what a
+pinhole rotation does not model; it is combined with the fields' read (the caller's prior covariance) by
+their information. R is fitted again at the combined focal lengths with the principal points at the
+centres, as everywhere in the calibration, and its covariance takes in theirs. A turn about the optical
+axis, or none (the evaluation's pair of a photo and its crop), tells nothing of them: the fields' read
+stands.
 """
 
 from __future__ import annotations
@@ -87,7 +89,6 @@ class RotationFit:
     # [2] the 1-sigma of what the rotation alone reads of each log focal scale, the floor included (inf: it
     # reads nothing; a held one's is inf too)
     read_sigma: np.ndarray
-    noise_px: float  # the noise its covariances are at: its own, floored
 
 
 class _Transfer:
@@ -324,4 +325,4 @@ def fit_rotation(
         A = inverse @ H[:3, 3:]
         rotation_cov = inverse + A @ scale_cov[np.ix_(free, free)] @ A.T
     inliers = np.linalg.norm(fitting.transfer(fit.x), axis=1) <= 3.0
-    return RotationFit(R, combined, scale_cov, rotation_cov, value, inliers, read_sigma, noise_px)
+    return RotationFit(R, combined, scale_cov, rotation_cov, value, inliers, read_sigma)

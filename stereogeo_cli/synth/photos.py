@@ -4,10 +4,11 @@ A folder of photographs with a ``labels.jsonl`` (``stereogeo evaluate``'s photo 
 stored, gravity where known) becomes a dataset folder in the project's layout. Each photograph gives one
 pair per zoom: its central part (the whole frame, then smaller centred cuts, each with its exact focal
 length and principal point at the centre), resized to ``short_side``, as the left view, and the same view
-softened as the right one (resized down by ``soften`` and back up): the same camera seen sharp and soft, so
-that sharpness does not tell the lens. A pair has no R or T (no pose losses); its gravity is the label's or
-unknown (null), so where it is unknown the fields are supervised through the focal length alone
-(``network/losses.py``, ``photo_weight``). Images whose pixels are all one value are left out.
+softened as the right one (``evaluate_photos.soften``: resized down by ``softening`` and back up): the same
+camera seen sharp and soft, so that sharpness does not tell the lens. A pair has no R or T (no pose losses);
+its gravity is the label's or unknown (null), so where it is unknown the fields are supervised through the
+focal length alone (``network/losses.py``, ``photo_weight``). Images whose pixels are all one value are left
+out.
 """
 
 from __future__ import annotations
@@ -42,27 +43,17 @@ def centre_cut(
     return out, K_out
 
 
-def softened(image: np.ndarray, factor: float) -> np.ndarray:
-    """The image resized down by ``factor`` (area filter) and back to its size (linear): softer, the same
-    geometry."""
-    height, width = image.shape[:2]
-    small = cv2.resize(
-        image, (max(1, round(width / factor)), max(1, round(height / factor))), interpolation=cv2.INTER_AREA
-    )
-    return cv2.resize(small, (width, height), interpolation=cv2.INTER_LINEAR)
-
-
 def make_photo_pairs(
     folder: str | Path,
     out: str | Path,
     split: str | None = "train",
     zooms: tuple[float, ...] = (1.0, 0.75, 0.55),
-    soften: float = 2.0,
+    softening: float = 2.0,
     short_side: int = 320,
 ) -> int:
     """Write the pairs of the photographs of ``folder`` (of one half of the project's split, or all with
     ``split`` None) into ``out``; returns how many. Only ``train_ok`` images are used."""
-    from stereogeo_cli.evaluate_photos import read_labels, select
+    from stereogeo_cli.evaluate_photos import read_labels, select, soften
 
     records = [r for r in select(read_labels(folder), split) if r.get("train_ok", True)]
     if not records:
@@ -83,7 +74,7 @@ def make_photo_pairs(
             view, K_view = centre_cut(image, K, zoom, short_side)
             name = f"{index:05d}_{round(zoom * 100):03d}"
             cv2.imwrite(str(out / "left" / f"{name}.png"), view)
-            cv2.imwrite(str(out / "right" / f"{name}.png"), softened(view, soften))
+            cv2.imwrite(str(out / "right" / f"{name}.png"), soften(view, softening))
             height, width = view.shape[:2]
             camera = {
                 "K": K_view.tolist(),
