@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -652,3 +653,38 @@ def test_training_on_a_gpu_runs_every_field_loss_through_the_refiner(tmp_path, t
     lines = [json.loads(x) for x in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
     steps = [x for x in lines if x["event"] == "train"]
     assert steps and all(np.isfinite(x["camera"]) and np.isfinite(x["total"]) for x in steps)
+
+
+def test_the_teacher_never_holds_pairs_of_teacher_free_data(tmp_path, tiny_dataset):
+    """Pure-rotation pairs with gravity are held to the teacher when they are ``data``, and never when they
+    are ``teacher_free_data`` (views the fine-tune is to learn from their own truth); the checkpoint says
+    which folders those were."""
+    from stereogeo_cli.network.checkpoint import save_checkpoint
+
+    crops = tmp_path / "crops"
+    shutil.copytree(tiny_dataset, crops)
+    records = [json.loads(line) for line in (crops / "calib.jsonl").read_text().splitlines()]
+    (crops / "calib.jsonl").write_text(
+        "".join(json.dumps({**r, "T": [0.0, 0.0, 0.0]}) + "\n" for r in records)
+    )
+    torch.manual_seed(6)
+    init = save_checkpoint(tmp_path / "init.pt", StereoGeoNet({"pretrained": False}), training_data="unit")
+    common = {
+        "init": str(init), "teacher": str(init), "train_only": ["decoder", "up_head", "latitude_head"],
+        "lr": 1e-2, "steps": 6, "batch_size": 4,
+        "loss": {"teacher_weight": 4.0, "rotation_weight": 0.0, "translation_weight": 0.0},
+    }  # fmt: skip
+
+    def teacher_terms(out: str, data: Path, **settings) -> tuple[list[float], dict]:
+        config = _config(tmp_path, data, **common, **settings, out=str(tmp_path / out))
+        run = _run_train(["--config", str(config)])
+        assert run.returncode == 0, run.stderr
+        log = [json.loads(line) for line in (tmp_path / out / "log.jsonl").read_text().splitlines()]
+        saved = torch.load(tmp_path / out / "latest.pt", weights_only=True)
+        return [r["teacher"] for r in log if r["event"] == "train"], saved
+
+    held, _ = teacher_terms("held", crops)
+    assert max(held) > 0  # the student moves away from the teacher on the pairs it holds
+    free, saved = teacher_terms("free", tiny_dataset, teacher_free_data=[str(crops)])
+    assert free == [0.0] * len(free)
+    assert f"{crops} (no teacher)" in saved["training_data"]

@@ -238,15 +238,20 @@ class TrainingPairs(torch.utils.data.Dataset):
     alike, half each way (blur of 0.5–2 px, unsharp mask of strength 0.3–1.5), so that how sharp an image
     looks stops telling its field of view (docs/network.md, "Sharpness and narrow real photographs").
     Which pairs is drawn from (``seed``, epoch, index), so it is reproducible and changes with the epoch.
+    ``teacher_free`` (one bool per source) marks the sources whose pairs the teacher never holds (sample
+    key ``teacher_free``).
     """
 
     def __init__(self, sources: list, sizes=TRAIN_SIZES, grey_share: float = 0.0, seed: int = 0,
-                 sharpness_share: float = 0.0):  # fmt: skip
+                 sharpness_share: float = 0.0, teacher_free: list[bool] | None = None):  # fmt: skip
         self.sources = sources
         self.sizes = tuple(tuple(s) for s in sizes)
         self.offsets = np.cumsum([0] + [len(s) for s in sources])
         self.grey_share, self.seed = float(grey_share), int(seed)
         self.sharpness_share = float(sharpness_share)
+        self.teacher_free = list(teacher_free) if teacher_free is not None else [False] * len(sources)
+        if len(self.teacher_free) != len(sources):
+            raise ValueError("teacher_free needs one flag per source")
 
     def __len__(self) -> int:
         return int(self.offsets[-1])
@@ -272,6 +277,7 @@ class TrainingPairs(torch.utils.data.Dataset):
                     sigma, amount = 1.0, rng.uniform(0.3, 1.5)
                 for view in ("left", "right"):
                     sample[view] = change_sharpness(sample[view], sigma, amount)
+        sample["teacher_free"] = torch.tensor(bool(self.teacher_free[source]))
         sample["index"] = torch.tensor(index)
         sample["size_index"] = torch.tensor(size_index)
         return sample

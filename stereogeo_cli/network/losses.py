@@ -303,8 +303,10 @@ def compute_losses(
             losses["depth"] = torch.stack(nll).mean()
     if teacher is not None and conf["teacher_weight"] > 0:
         # the pure-rotation pairs with gravity: the crops of real panoramas (not photographs, which are
-        # learnt from their own truth)
+        # learnt from their own truth, nor pairs of the train setting teacher_free_data)
         held = ~batch["has_translation"] & has_gravity.all(-1)
+        if "teacher_free" in batch:
+            held = held & ~batch["teacher_free"]
         losses["teacher"] = teacher_loss(out, teacher, held)
     weights = {
         "teacher": conf["teacher_weight"],

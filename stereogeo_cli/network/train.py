@@ -51,6 +51,12 @@ SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
     "steps": (6000, "Optimiser steps in all."),
     "batch_size": (8, "Pairs per step and process."),
     "sizes": ([list(s) for s in TRAIN_SIZES], "Training sizes (width, height); one per batch."),
+    "teacher_free_data": (
+        [],
+        "Dataset folders trained on like data, whose pairs the teacher never holds (teacher_weight): views "
+        "the teacher reads wrong and the fine-tune is to learn from their own truth, e.g. sharp narrow "
+        "crops of high-resolution panoramas.",
+    ),
     "wide_data": (
         [],
         "Dataset folders of wide frames (make-data --aspects 2:1,12:5,33:10): they fill wide_share of the "
@@ -161,7 +167,7 @@ def _to_float(losses: dict) -> dict[str, float]:
 
 
 def _sources(conf: dict) -> list:
-    sources: list = [FolderPairs(d) for d in conf["data"]]
+    sources: list = [FolderPairs(d) for d in conf["data"] + conf["teacher_free_data"]]
     if conf["render"]:
         from stereogeo_cli.synth.config import SynthConfig
 
@@ -363,8 +369,10 @@ def train(conf: dict) -> dict:
 
     sources, wide_sources = _sources(conf), [FolderPairs(d) for d in conf["wide_data"]]
     sizes = list(conf["sizes"]) + (list(conf["wide_sizes"]) if wide_sources else [])
+    free = set(range(len(conf["data"]), len(conf["data"]) + len(conf["teacher_free_data"])))
+    teacher_free = [i in free for i in range(len(sources) + len(wide_sources))]
     dataset = TrainingPairs(
-        sources + wide_sources, sizes, conf["grey_share"], conf["seed"], conf["sharpness_share"]
+        sources + wide_sources, sizes, conf["grey_share"], conf["seed"], conf["sharpness_share"], teacher_free
     )
     wide = None
     if wide_sources:
@@ -379,6 +387,7 @@ def train(conf: dict) -> dict:
     val = FolderPairs(conf["val"]) if conf["val"] and rank == 0 else None
     training_data = ", ".join(
         [str(d) for d in conf["data"]]
+        + [f"{d} (no teacher)" for d in conf["teacher_free_data"]]
         + ([f"{conf['render']} rendered"] if conf["render"] else [])
         + [f"{d} (wide)" for d in conf["wide_data"]]
     )
