@@ -594,8 +594,8 @@ class Calibrator:
         self, view: ViewFields, fit: CameraFit, found: ManhattanFocal
     ) -> tuple[CameraFit, FocalCombination | None]:
         """``fit`` with its focal length combined with ``found``, the one a Manhattan frame of the image's
-        straight edges gives, where the two agree within the conf's ``gate_sigmas`` or the frame explains the
-        image's edges (``ManhattanFocal.explains_the_edges``): (fit, the report's entry or None).
+        straight edges gives, where the two agree within the conf's ``gate_sigmas``: (fit, the report's
+        entry or None).
 
         The fields' sigma in the combination is the estimation's, as with an EXIF prior (the estimates do
         not depend on photo_sigma_scale); the combined sigma is widened by photo_sigma_scale when reported,
@@ -605,8 +605,7 @@ class Calibrator:
         if not (math.isfinite(fields_sigma) and fields_sigma > 0):
             return fit, None
         apart = abs(math.log(found.focal_px / fit.focal_px))
-        agree = apart <= conf["gate_sigmas"] * math.hypot(fields_sigma, found.sigma_rel)
-        if not (agree or found.explains_the_edges(conf)):
+        if apart > conf["gate_sigmas"] * math.hypot(fields_sigma, found.sigma_rel):
             return fit, None
         focal, sigma = combine_focal(
             fit.focal_px, fields_sigma * fit.focal_px, found.focal_px, found.sigma_rel * found.focal_px

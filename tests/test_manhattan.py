@@ -7,12 +7,11 @@ import math
 import numpy as np
 import pytest
 
-import stereogeo_cli.pipeline as pipeline
 from stereogeo_cli.batch import _evidence
 from stereogeo_cli.geometry import gravity_from_roll_pitch
 from stereogeo_cli.io.images import load_image
 from stereogeo_cli.pipeline import Calibrator
-from stereogeo_cli.refine.manhattan import ManhattanFocal, default_conf, manhattan_focal
+from stereogeo_cli.refine.manhattan import default_conf, manhattan_focal
 from stereogeo_cli.refine.plumb import PlumbLens
 
 WIDTH, HEIGHT, FOCAL = 640, 480, 500.0
@@ -80,20 +79,6 @@ def test_a_camera_square_to_the_walls_learns_nothing_of_the_focal_length():
     assert found is None or found.sigma_rel > 1.0
 
 
-def test_a_frame_explains_the_edges_only_where_most_edges_run_along_each_of_its_directions():
-    gravity = gravity_from_roll_pitch(math.radians(2.0), math.radians(-12.0))
-    frame = _frame(gravity, 35.0)
-    scene = manhattan_focal(_segments(frame, clutter=0.1), (WIDTH, HEIGHT), gravity, FOCAL)
-    assert scene is not None and scene.explains_the_edges()
-    assert scene.fitted >= sum(scene.families)
-    # most edges at random angles (foliage, a cluttered desk): the frame is not the scene's
-    clutter = manhattan_focal(_segments(frame, clutter=0.7, seed=1), (WIDTH, HEIGHT), gravity, FOCAL)
-    assert clutter is not None and not clutter.explains_the_edges()
-    # one direction barely seen: its vanishing point, and with it f, hangs on a few edges
-    assert not ManhattanFocal(FOCAL, 0.08, (60, 3, 40), 105).explains_the_edges()
-    assert ManhattanFocal(FOCAL, 0.08, (60, 5, 40), 105).explains_the_edges()
-
-
 def test_too_few_segments_give_nothing():
     gravity = gravity_from_roll_pitch(0.0, math.radians(-10.0))
     segments = _segments(_frame(gravity, 30.0), count=5)
@@ -132,26 +117,6 @@ def test_calibrate_leaves_the_edges_out_where_they_show_a_lens(bundled, monkeypa
         assert list(result.pose.distortion) == [0.0, 0.0]  # the matches show no lens either way
         for entry in result.report()["focal_prior"]:
             assert (entry is not None and entry["source"] == "lines") == used
-
-
-@pytest.mark.parametrize("fitted, used", [(100, True), (400, False)])
-def test_edges_far_from_the_fields_count_where_their_frame_explains_them(bundled, monkeypatch, fitted, used):
-    """The edges read a focal length 1.8× the fields': far outside the gate, so it is combined only where
-    the frame explains most of the image's edges (100 of 100 segments along its directions), not where
-    it explains a quarter of them."""
-    left, right = bundled
-
-    def far(segments, image_size, gravity_up, focal_px, **kwargs):
-        return ManhattanFocal(1.8 * focal_px, 0.08, (40, 30, 30), fitted)
-
-    monkeypatch.setattr(pipeline, "manhattan_focal", far)
-    result = Calibrator(threads=2).calibrate(left, right)
-    for entry in result.report()["focal_prior"]:
-        assert (entry is not None and entry["source"] == "lines") == used
-        if used:
-            assert entry["focal_px"] == pytest.approx(1.8 * entry["fields_focal_px"])
-            # the edges' sigma is the tighter: the combination lies nearer their read
-            assert entry["combined_focal_px"] > math.sqrt(1.8) * entry["fields_focal_px"]
 
 
 def test_the_reported_focal_sigma_takes_in_how_far_the_two_reads_are_apart(bundled):

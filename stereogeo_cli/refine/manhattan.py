@@ -46,14 +46,8 @@ default_conf = {
     # points", "Its sigma")
     "sigma_scale": 3.0,
     "sigma_floor": 0.08,
-    # combined with the fields' focal length only within this many combined sigmas of it (pipeline), unless
-    # the frame explains the edges (ManhattanFocal.explains_the_edges): at least this share of the fitted
-    # segments, and this many along each direction. The fields read real photographs' focal lengths far
-    # worse than the sigma they give, so there a frame of the scene's own edges outweighs them however far
-    # apart they are (docs/refine.md, "Vanishing points", "The gate")
+    # combined with the fields' focal length only within this many combined sigmas of it (pipeline)
     "gate_sigmas": 2.0,
-    "frame_share": 0.8,
-    "frame_min_family": 5,
     # not used where the image's edges read a lens (refine/plumb.py) more than this many sigmas from none:
     # the raw chessboard rig's views read 5.0–7.1, Middlebury's pinhole views at most 3.3 (pipeline;
     # docs/refine.md, "Vanishing points", "Where it is not used, and why")
@@ -91,23 +85,11 @@ def _moved_up(up: np.ndarray, basis: np.ndarray, d1: float, d2: float) -> tuple[
 class ManhattanFocal:
     """The focal length (pixels) a Manhattan frame of segments gives, its relative 1-sigma, and the number
     of segments (within twice the loss scale) along each of its directions (horizontal, horizontal,
-    vertical), of the ``fitted`` segments (those long enough)."""
+    vertical)."""
 
     focal_px: float
     sigma_rel: float
     families: tuple[int, int, int]
-    fitted: int
-
-    def explains_the_edges(self, conf: dict | None = None) -> bool:
-        """Whether the frame is the scene's own: it explains at least ``frame_share`` of the fitted segments
-        and each of its three directions at least ``frame_min_family`` of them. Such a frame's focal length
-        is combined with the fields' even where the two disagree (pipeline)."""
-        conf = {**default_conf, **(conf or {})}
-        return (
-            self.fitted > 0
-            and sum(self.families) >= conf["frame_share"] * self.fitted
-            and min(self.families) >= conf["frame_min_family"]
-        )
 
 
 class _Frame:
@@ -264,4 +246,4 @@ def manhattan_focal(
     inlier = r < 2.0 * frame.scale
     families = tuple(int(np.sum(inlier & (k == j))) for j in range(3))
     sigma = max(conf["sigma_scale"] * math.sqrt(variance), conf["sigma_floor"])
-    return ManhattanFocal(frame.focal(x), sigma, families, len(segments))  # type: ignore[arg-type]
+    return ManhattanFocal(frame.focal(x), sigma, families)  # type: ignore[arg-type]
