@@ -51,7 +51,7 @@ from stereogeo_cli.refine.lines import default_conf as lines_conf
 from stereogeo_cli.refine.lines import detect_segments, detector_pixel, gravity_with_lines
 from stereogeo_cli.refine.lm import FieldSamples, field_samples
 from stereogeo_cli.refine.lm import default_conf as refine_default_conf
-from stereogeo_cli.refine.manhattan import ManhattanFocal, manhattan_focal
+from stereogeo_cli.refine.manhattan import ManhattanFocal, stable_manhattan_focal
 from stereogeo_cli.refine.manhattan import default_conf as manhattan_conf
 from stereogeo_cli.refine.plumb import PlumbLens, plumb_line_distortion
 from stereogeo_cli.refine.plumb import default_conf as plumb_conf
@@ -576,17 +576,18 @@ class Calibrator:
         tick = time.perf_counter()
         conf = self.conf["manhattan"]
         reads = [
-            manhattan_focal(
-                segments,
+            stable_manhattan_focal(
+                fine,
+                coarse,
                 (fit.width, fit.height),
                 fit.gravity_up,
                 fit.focal_px,
-                detector_px=detector_pixel(fit.width, fit.height, conf["max_short_side"]),
+                detector_px=(fine_px, coarse_px),
                 conf=conf,
             )  # fmt: skip
             if need
             else None
-            for segments, fit, need in zip(edges, fits, needed, strict=True)
+            for ((fine, fine_px), (coarse, coarse_px)), fit, need in zip(edges, fits, needed, strict=True)
         ]
         return reads, milliseconds + (time.perf_counter() - tick) * 1e3
 
@@ -597,19 +598,23 @@ class Calibrator:
         straight edges gives, where the two agree within the conf's ``gate_sigmas``: (fit, the report's
         entry or None).
 
-        The fields' sigma in the combination is the estimation's, as with an EXIF prior (the estimates do
-        not depend on photo_sigma_scale); the combined sigma is widened by photo_sigma_scale when reported,
-        as the fields' own is (refine/manhattan.py, docs/refine.md)."""
+        The fields' read is weighed, in the gate and in the combination, with the estimation's sigma and
+        the conf's ``camera_bias_sigma`` in quadrature: how far the fields can read a real camera off, which
+        the edges do not share (docs/refine.md, "Uncertainty of the focal length on photographs"). The
+        combination's sigma is the estimation's (the fields' without that bias, as with an EXIF prior; the
+        estimates do not depend on photo_sigma_scale): the reported sigma adds the bias and the
+        photo_sigma_scale as for the fields' own read (refine/manhattan.py, docs/refine.md)."""
         conf = self.conf["manhattan"]
         fields_sigma = fit.sigma["focal_px"] / fit.focal_px
         if not (math.isfinite(fields_sigma) and fields_sigma > 0):
             return fit, None
+        weighed = math.hypot(fields_sigma, self.conf["camera_bias_sigma"])
         apart = abs(math.log(found.focal_px / fit.focal_px))
-        if apart > conf["gate_sigmas"] * math.hypot(fields_sigma, found.sigma_rel):
+        if apart > conf["gate_sigmas"] * math.hypot(weighed, found.sigma_rel):
             return fit, None
-        focal, sigma = combine_focal(
-            fit.focal_px, fields_sigma * fit.focal_px, found.focal_px, found.sigma_rel * found.focal_px
-        )
+        lines = found.sigma_rel * found.focal_px
+        focal, _ = combine_focal(fit.focal_px, weighed * fit.focal_px, found.focal_px, lines)
+        _, sigma = combine_focal(fit.focal_px, fields_sigma * fit.focal_px, found.focal_px, lines)
         entry = FocalCombination(
             "lines", found.focal_px, found.sigma_rel * found.focal_px, fit.focal_px,
             fields_sigma * fit.focal_px, focal, segments=tuple(found.families),
@@ -776,11 +781,22 @@ class Calibrator:
             finding_lines = self._pool.submit(_timed, self._lines_and_lens, left, right, fits_lens)
         finding_edges = None
         if conf["manhattan"]["enabled"]:
-            short = conf["manhattan"]["max_short_side"]
             finding_edges = self._background.submit(
-                _timed, lambda: [detect_segments(image, short) for image in (left, right)]
+                _timed, lambda: [self._edge_segments(image) for image in (left, right)]
             )
         return features, finding_lines, finding_edges
+
+    def _edge_segments(self, image: np.ndarray) -> tuple[tuple[np.ndarray, float], tuple[np.ndarray, float]]:
+        """The image's line segments for its Manhattan frame, found at the conf's ``max_short_side`` and again
+        at its ``stability_scale`` of that resolution (refine/manhattan.py): each with the size of its
+        detector's pixel in image pixels."""
+        conf = self.conf["manhattan"]
+        height, width = image.shape[:2]
+        short = min(conf["max_short_side"], width, height)
+        coarse = max(1, round(short * conf["stability_scale"]))
+        return tuple(
+            (detect_segments(image, side), detector_pixel(width, height, side)) for side in (short, coarse)
+        )
 
     def _features(self, left: np.ndarray, right: np.ndarray) -> tuple[tuple[Features, float], ...]:
         """Both images' features, one after the other (``_features_lock``), each with its milliseconds."""

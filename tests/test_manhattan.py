@@ -11,7 +11,8 @@ from stereogeo_cli.batch import _evidence
 from stereogeo_cli.geometry import gravity_from_roll_pitch
 from stereogeo_cli.io.images import load_image
 from stereogeo_cli.pipeline import Calibrator
-from stereogeo_cli.refine.manhattan import default_conf, manhattan_focal
+from stereogeo_cli.pipeline import default_conf as pipeline_conf
+from stereogeo_cli.refine.manhattan import default_conf, manhattan_focal, stable_manhattan_focal
 from stereogeo_cli.refine.plumb import PlumbLens
 
 WIDTH, HEIGHT, FOCAL = 640, 480, 500.0
@@ -84,6 +85,41 @@ def test_too_few_segments_give_nothing():
     segments = _segments(_frame(gravity, 30.0), count=5)
     assert manhattan_focal(segments, (WIDTH, HEIGHT), gravity, FOCAL) is None
     assert manhattan_focal(np.zeros((0, 4)), (WIDTH, HEIGHT), gravity, FOCAL) is None
+
+
+def test_a_frame_the_coarser_edges_move_is_read_with_the_move_in_its_sigma():
+    """The frame fitted to the edges found at a coarser resolution: where it lands where the fine one does,
+    the read keeps its own sigma; where it lands elsewhere (the fine frame was not the scene's), the read's
+    sigma takes in the distance; where it finds no frame, there is no read."""
+    gravity = gravity_from_roll_pitch(math.radians(2.0), math.radians(-8.0))
+    frame = _frame(gravity, 30.0)
+    fine = _segments(frame)
+    alone = manhattan_focal(fine, (WIDTH, HEIGHT), gravity, FOCAL)
+    same = stable_manhattan_focal(fine, _segments(frame, seed=1), (WIDTH, HEIGHT), gravity, FOCAL)
+    assert same.focal_px == alone.focal_px and same.families == alone.families
+    assert same.sigma_rel == pytest.approx(alone.sigma_rel, rel=0.05)
+    elsewhere = _segments(frame, focal=1.4 * FOCAL, seed=2)
+    moved = stable_manhattan_focal(fine, elsewhere, (WIDTH, HEIGHT), gravity, FOCAL)
+    assert moved.focal_px == alone.focal_px
+    assert moved.sigma_rel == pytest.approx(math.hypot(alone.sigma_rel, math.log(1.4)), rel=0.05)
+    assert stable_manhattan_focal(fine, fine[:5], (WIDTH, HEIGHT), gravity, FOCAL) is None
+
+
+def test_the_fields_are_weighed_against_the_edges_with_the_camera_bias(bundled):
+    """The fields' read can be off by a camera's bias that the edges do not share: with camera_bias_sigma
+    the combination lies nearer the edges' read than without it, and its sigma (the estimation's) is the
+    same either way."""
+    left, right = bundled
+    reports = [
+        Calibrator(threads=2, conf={"camera_bias_sigma": bias}).calibrate(left, right).report()
+        for bias in (0.0, pipeline_conf["camera_bias_sigma"])
+    ]
+    for side in (0, 1):
+        plain, weighed = (report["focal_prior"][side] for report in reports)
+        for read in ("focal_px", "fields_focal_px"):  # the two reads are the same either way
+            assert plain[read] == weighed[read]
+        apart = [abs(math.log(entry["combined_focal_px"] / entry["focal_px"])) for entry in (plain, weighed)]
+        assert apart[1] < 0.9 * apart[0]
 
 
 def test_calibrate_combines_the_fields_focal_length_with_the_edges_one(bundled):

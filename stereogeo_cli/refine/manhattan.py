@@ -16,8 +16,13 @@ grid of focal lengths around the fields' and of yaws; the best start is refined 
 The 1-sigma of log f comes from the fit's Hessian, with every pixel of segment length one independent
 measurement. Neighbouring pixels of one edge are not independent, nor the edges of one object, so it is
 widened by ``sigma_scale`` and floored at ``sigma_floor``: both measured on held-out renders and
-real-panorama crops (docs/refine.md, "Vanishing points"). The pipeline combines it with the fields' focal
-length only where the two agree within ``gate_sigmas`` (the lines can lock onto a non-Manhattan pattern).
+real-panorama crops (docs/refine.md, "Vanishing points"). That sigma says how well the segments fix the
+frame, not whether the frame is the scene's: a frame locked onto clutter, a statue or a pattern that is not
+Manhattan fits its segments as tightly. Such a frame moves when the edges are detected at another
+resolution, and a frame of the scene does not, so :func:`stable_manhattan_focal` fits the frame again to the
+segments found at ``stability_scale`` of the detector's resolution and adds the two reads' distance in log f
+to the sigma. The pipeline combines the read with the fields' focal length only where the two agree within
+``gate_sigmas`` (the lines can lock onto a non-Manhattan pattern).
 """
 
 from __future__ import annotations
@@ -48,6 +53,9 @@ default_conf = {
     "sigma_floor": 0.08,
     # combined with the fields' focal length only within this many combined sigmas of it (pipeline)
     "gate_sigmas": 2.0,
+    # the frame is fitted again to the segments found at this fraction of the detector's resolution; the
+    # two reads' distance in log f joins the sigma (module docstring; docs/refine.md, "Its sigma")
+    "stability_scale": 0.75,
     # not used where the image's edges read a lens (refine/plumb.py) more than this many sigmas from none:
     # the raw chessboard rig's views read 5.0–7.1, Middlebury's pinhole views at most 3.3 (pipeline;
     # docs/refine.md, "Vanishing points", "Where it is not used, and why")
@@ -247,3 +255,31 @@ def manhattan_focal(
     families = tuple(int(np.sum(inlier & (k == j))) for j in range(3))
     sigma = max(conf["sigma_scale"] * math.sqrt(variance), conf["sigma_floor"])
     return ManhattanFocal(frame.focal(x), sigma, families)  # type: ignore[arg-type]
+
+
+def stable_manhattan_focal(
+    segments: np.ndarray,
+    coarse_segments: np.ndarray,
+    image_size: tuple[int, int],
+    gravity_up: np.ndarray,
+    focal_px: float,
+    *,
+    detector_px: tuple[float, float] = (1.0, 1.0),
+    conf: dict | None = None,
+) -> ManhattanFocal | None:
+    """:func:`manhattan_focal` of ``segments``, with the distance in log f from the frame fitted to
+    ``coarse_segments`` (the same image's, found at ``stability_scale`` of the resolution) added to its
+    sigma in quadrature; None where either fit gives none (a frame the coarser edges do not show is not
+    the scene's). ``detector_px``: the two detectors' pixel sizes, in image pixels."""
+    found = manhattan_focal(
+        segments, image_size, gravity_up, focal_px, detector_px=detector_px[0], conf=conf
+    )  # fmt: skip
+    if found is None:
+        return None
+    coarse = manhattan_focal(
+        coarse_segments, image_size, gravity_up, focal_px, detector_px=detector_px[1], conf=conf
+    )  # fmt: skip
+    if coarse is None:
+        return None
+    moved = abs(math.log(found.focal_px / coarse.focal_px))
+    return ManhattanFocal(found.focal_px, math.hypot(found.sigma_rel, moved), found.families)
