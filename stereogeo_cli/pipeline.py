@@ -68,7 +68,8 @@ default_conf = {
     # reported focal length read from the images (the fields, alone or with the vanishing points): the
     # fields' own sigma describes the scatter over one image's cells, not how wrong the network can be on a
     # kind of camera, and that error is common to every photo of it (docs/refine.md, "Uncertainty of the
-    # focal length on photographs"); 0: none
+    # focal length on photographs"); it also weighs the fields' read against the straight edges' (which do
+    # not share it: Calibrator._with_manhattan); 0: none
     "camera_bias_sigma": 0.25,
     # where evidence moved a focal length away from the images' read (the straight edges' read combined with
     # it; the matches' focal ratio; two focal lengths held equal), the reported focal sigma takes in, in
