@@ -615,7 +615,8 @@ class Calibrator:
             return fit, None
         lines = found.sigma_rel * found.focal_px
         focal, _ = combine_focal(fit.focal_px, weighed * fit.focal_px, found.focal_px, lines)
-        _, sigma = combine_focal(fit.focal_px, fields_sigma * fit.focal_px, found.focal_px, lines)
+        unbiased, spread = combine_focal(fit.focal_px, fields_sigma * fit.focal_px, found.focal_px, lines)
+        sigma = focal * spread / unbiased  # the estimation's relative sigma, at the focal length held
         entry = FocalCombination(
             "lines", found.focal_px, found.sigma_rel * found.focal_px, fit.focal_px,
             fields_sigma * fit.focal_px, focal, segments=tuple(found.families),

@@ -107,8 +107,7 @@ def test_a_frame_the_coarser_edges_move_is_read_with_the_move_in_its_sigma():
 
 def test_the_fields_are_weighed_against_the_edges_with_the_camera_bias(bundled):
     """The fields' read can be off by a camera's bias that the edges do not share: with camera_bias_sigma
-    the combination lies nearer the edges' read than without it, and its sigma (the estimation's) is the
-    same either way."""
+    the combination lies nearer the edges' read than without it; the two reads are the same either way."""
     left, right = bundled
     reports = [
         Calibrator(threads=2, conf={"camera_bias_sigma": bias}).calibrate(left, right).report()
