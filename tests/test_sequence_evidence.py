@@ -47,6 +47,18 @@ def test_without_rotation_a_sharp_adjustment_is_used_but_not_called_observable()
     assert straight.focal_px == pytest.approx(500.0, rel=0.01)
 
 
+def test_a_rig_standing_still_keeps_the_pairs_focal_length_and_sigma():
+    """Not turned and not moved: the frames show what one pair shows, and the adjustment's sharp focal
+    length (tied by the rig's own left-right rotation alone) is left out; a rig that moved is adjusted."""
+    pairs = FocalEvidence(480.0, 96.0)
+    still = combine_adjusted_focal(AdjustedCamera(420.0, 0.5), pairs, 0.0, travel_baselines=0.01)
+    assert still.adjustment_weight == 0.0 and not still.observable
+    assert still.focal_px == pytest.approx(480.0) and still.sigma_px == pytest.approx(96.0)
+    assert still.adjusted.focal_px == 420.0  # still reported
+    drove = combine_adjusted_focal(AdjustedCamera(420.0, 0.5), pairs, 0.0, travel_baselines=20.0)
+    assert drove.adjustment_weight > 0.9
+
+
 def test_a_pairs_reading_far_from_a_sharp_adjustment_is_left_out():
     # a car camera read as 313 px for 707: the adjustment's 690 ± 2 % is the measurement
     far = combine_adjusted_focal(AdjustedCamera(690.0, 1.0), FocalEvidence(313.0, 78.0), 2.0)

@@ -39,6 +39,10 @@ default_conf = {
     # adjustment's unmodelled errors can pull
     "observable_ratio": 1.0 / 3.0,
     "observable_min_rotation_deg": 5.0,
+    # a rig that turned less than observable_min_rotation_deg and whose camera moved less than this many
+    # rig baselines stood still: its frames show what one pair shows, and the adjustment's focal length,
+    # tied by the rig's own left-right rotation alone, is left out (the pairs' reading and sigma are kept)
+    "still_travel_baselines": 0.5,
     # the pairs' reading is left out where it is this many combined sigmas from the adjustment's: a
     # network's read of a real lens can be far off (a car camera's 313 px for 707), and a sharp
     # adjustment is then the measurement
@@ -93,17 +97,29 @@ class SequenceFocal:
 
 
 def combine_adjusted_focal(
-    adjusted, pairs: FocalEvidence, rotation_span_deg: float | None, conf: dict | None = None
+    adjusted,
+    pairs: FocalEvidence,
+    rotation_span_deg: float | None,
+    conf: dict | None = None,
+    travel_baselines: float | None = None,
 ) -> SequenceFocal:
     """The adjustment's focal length (``adjusted.focal_px``, ``adjusted.sigma_focal_px`` from its cost
     profile, infinite where there is none) combined with the pairs' ``pairs`` in log f; observable where
-    the adjustment carries it and the rig turned by ``rotation_span_deg`` (None: unknown) enough."""
+    the adjustment carries it and the rig turned by ``rotation_span_deg`` (None: unknown) enough. Where the
+    rig also moved less than the conf's ``still_travel_baselines`` (``travel_baselines``: how far its
+    camera moved, in rig baselines; None: unknown), it stood still and the adjustment is left out."""
     conf = {**default_conf, **(conf or {})}
     f_a, f_p = adjusted.focal_px, pairs.focal_px
     floor = conf["focal_floor_rel_free_centre" if adjusted.principal_point_refined else "focal_floor_rel"]
     s_a = math.hypot(adjusted.sigma_focal_px / f_a, floor)
     s_p = pairs.sigma_px / f_p if math.isfinite(pairs.sigma_px) and pairs.sigma_px > 0 else math.inf
-    w_a = 0.0 if not math.isfinite(s_a) else 1.0 / s_a**2
+    still = (
+        rotation_span_deg is not None
+        and rotation_span_deg < conf["observable_min_rotation_deg"]
+        and travel_baselines is not None
+        and travel_baselines < conf["still_travel_baselines"]
+    )
+    w_a = 0.0 if still or not math.isfinite(s_a) else 1.0 / s_a**2
     w_p = 0.0 if not math.isfinite(s_p) else 1.0 / s_p**2
     if w_a + w_p == 0:
         return SequenceFocal(f_a, math.inf, False, 0.0, FocalEvidence(f_a, f_a * s_a), pairs)

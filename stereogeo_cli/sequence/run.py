@@ -268,8 +268,11 @@ def calibrate_frames(
     cam_from_world = {i: pose @ np.linalg.inv(to_output) for i, pose in registered.items()}
     attitudes = frame_attitudes(cam_from_world, np.array([0.0, 0.0, 1.0]), model.R)
     span = _rotation_span(cam_from_world)
+    travel = _travel(cam_from_world) / baseline
     focals = [
-        combine_adjusted_focal(adjusted, FocalEvidence(pf.focal_px, pf.sigma_px), span, conf["evidence"])
+        combine_adjusted_focal(
+            adjusted, FocalEvidence(pf.focal_px, pf.sigma_px), span, conf["evidence"], travel_baselines=travel
+        )
         for adjusted, pf in zip(model.cameras, pair_focals, strict=True)
     ]
     if any(f.pairs_left_out for f in focals):
@@ -284,10 +287,12 @@ def calibrate_frames(
         notes.append(f"{unregistered} of {len(frames)} frames could not be registered")
     observable = all(f.observable for f in focals)
     if not observable:
-        notes.append(
-            "the motion does not fix the focal length (too little rotation): the adjustment's and the pairs' "
-            "readings are combined by their sigmas"
+        kept = (
+            "the pairs' readings are kept"
+            if all(f.adjustment_weight == 0.0 for f in focals)
+            else "the adjustment's and the pairs' readings are combined by their sigmas"
         )
+        notes.append(f"the motion does not fix the focal length (too little rotation): {kept}")
     calibration = _assemble(
         frames, model, focals, attitudes, (up, up_sigma_deg, used, readings_up[1], segments_up), span,
         baseline, (scale_source, baseline_sigma), model_file, notes, timing,
@@ -352,6 +357,13 @@ def _rotation_span(cam_from_world: dict[int, np.ndarray]) -> float:
     """The largest rotation (degrees) between any registered frame's camera and the first's."""
     poses = [cam_from_world[i][:3, :3] for i in sorted(cam_from_world)]
     return max(math.degrees(rotation_angle(p @ poses[0].T)) for p in poses)
+
+
+def _travel(cam_from_world: dict[int, np.ndarray]) -> float:
+    """The largest distance between any registered frame's camera centre and the first's (the world's
+    units)."""
+    centres = [-pose[:3, :3].T @ pose[:3, 3] for _, pose in sorted(cam_from_world.items())]
+    return max(float(np.linalg.norm(c - centres[0])) for c in centres)
 
 
 def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model_file, notes, timing,
