@@ -695,7 +695,9 @@ class Calibrator:
         A pair whose right camera turns out to sit to the left of the left one (T_x > 0: the files were
         most likely swapped) is calibrated again in the other order and the mirror of that is returned,
         with a warning: the pose head learnt rigs with the right camera on the right, and its read of a
-        swapped pair is worse, so a pair and its swap give the same rig.
+        swapped pair is worse, so a pair and its swap give the same rig. A rig mounted upside down looks the
+        same in its images, and the network, which knows views rolled by up to 45°, reads them as upright:
+        such a rig's gravity comes out reversed, which the warning names.
         """
         exif = exif or ((None, None), (None, None))
         if self._ahead is not None and not (self._ahead[0] is left and self._ahead[1] is right):
@@ -710,7 +712,10 @@ class Calibrator:
             right, left, baseline_m=baseline_m, focal_left=focal_right, focal_right=focal_left,
             exif=(exif[1], exif[0]),
         )  # fmt: skip
-        note = "the right camera sits to the left of the left one (T_x > 0): were the two images swapped?"
+        note = (
+            "the right camera sits to the left of the left one (T_x > 0): were the two images swapped, or is "
+            "the rig upside down (its gravity then comes out reversed)?"
+        )
         if swapped.calibration.T[0] >= 0:  # neither order puts the right camera on the right
             return result.with_warning(note)
         return swapped.mirrored().with_warning(note)

@@ -59,6 +59,22 @@ def test_swapped_pair_gives_the_mirrored_rig(example_pair, onnx_model):
     assert not any("swapped" in note for note in direct.notes.split("; "))
 
 
+def test_an_upside_down_rig_is_warned_of_and_its_gravity_comes_out_reversed(example_pair, onnx_model):
+    """Both images turned 180°: the right camera now sits left of the left one, as with swapped files. The
+    network knows views rolled by up to 45° and reads the turned views as upright, so the gravity comes out
+    reversed, as the warning says: the true up of a turned camera is (-x, -y, z) of the upright one's."""
+    calibrator = stereogeo_cli.Calibrator(onnx_model, threads=1)
+    images = [stereogeo_cli.load_image(p) for p in example_pair]
+    upright = calibrator.calibrate(*images).calibration
+    turned = calibrator.calibrate(*[np.ascontiguousarray(image[::-1, ::-1]) for image in images]).calibration
+    assert turned.T[0] > 0
+    assert any("upside down" in note and "reversed" in note for note in turned.notes.split("; "))
+    pairs = ((turned.gravity_left, upright.gravity_left), (turned.gravity_right, upright.gravity_right))
+    for got, up in pairs:
+        reversed_truth = np.array([up[0], up[1], -up[2]])
+        assert np.degrees(np.arccos(np.clip(got @ reversed_truth, -1.0, 1.0))) < 5.0
+
+
 def test_the_next_pairs_image_work_started_ahead_gives_the_same_calibration(example_pair, onnx_model):
     """``calibrate(..., upcoming=...)`` (how ``batch-calibrate`` runs its pairs) starts the next pair's
     features and line segments on the pool: that pair's calibration is the same bit for bit as without,
