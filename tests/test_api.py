@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 import stereogeo_cli
 import stereogeo_cli.pipeline as pipeline
 from stereogeo_cli.cli import app
-from stereogeo_cli.geometry import rotation_angle
+from stereogeo_cli.geometry import gravity_angle, rotation_angle
 
 
 def test_api_result_equals_the_cli_report(example_pair, onnx_model):
@@ -71,8 +71,7 @@ def test_an_upside_down_rig_is_warned_of_and_its_gravity_comes_out_reversed(exam
     assert any("upside down" in note and "reversed" in note for note in turned.notes.split("; "))
     pairs = ((turned.gravity_left, upright.gravity_left), (turned.gravity_right, upright.gravity_right))
     for got, up in pairs:
-        reversed_truth = np.array([up[0], up[1], -up[2]])
-        assert np.degrees(np.arccos(np.clip(got @ reversed_truth, -1.0, 1.0))) < 5.0
+        assert np.degrees(gravity_angle(got, [up[0], up[1], -up[2]])) < 5.0
 
 
 def test_the_next_pairs_image_work_started_ahead_gives_the_same_calibration(example_pair, onnx_model):
