@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.geometry import TURNS_DEG
 from stereogeo_cli.pipeline import CalibrationResult, Calibrator, calibrator_conf
 
 ImageInput = str | os.PathLike | np.ndarray
@@ -24,6 +25,7 @@ def calibrate(
     pinhole: bool = False,
     lines: bool = True,
     exif: bool = True,
+    rotate: int = 0,
     model: str | os.PathLike | None = None,
     threads: int = 0,
     calibrator: Calibrator | None = None,
@@ -38,6 +40,8 @@ def calibrate(
             1-sigma ``focal_sigma``.
         pinhole: fit no lens distortion (rectified or undistorted images).
         lines: use the images' line segments (vertical ones for gravity, vanishing points for the focal).
+        rotate: degrees (0, 90, 180 or 270) to turn both images clockwise before they are read, for a rig
+            mounted upside down (180) or on its side; the result is for the images as given.
         model, threads: the ONNX model (default: the shipped one) and the network's threads.
         calibrator: a :class:`Calibrator` to reuse across pairs (``model``, ``threads``, ``pinhole`` and
             ``lines`` are then its own).
@@ -58,6 +62,8 @@ def calibrate(
             raise StereoGeoError(f"focal sigma must be a fraction between 0 and 1, got {focal_sigma}")
         if focal_left is None and focal_right is None:
             raise StereoGeoError("a focal sigma needs a left or right focal length")
+    if rotate not in TURNS_DEG:
+        raise StereoGeoError(f"rotate must be 0, 90, 180 or 270 degrees, got {rotate}")
     images = [image if isinstance(image, np.ndarray) else load_image(image) for image in (left, right)]
     paths = [None if isinstance(image, np.ndarray) else Path(image) for image in (left, right)]
     if calibrator is None:
@@ -65,12 +71,19 @@ def calibrate(
         if focal_sigma is not None:
             conf["known_focal_sigma"] = focal_sigma
         # the pair's image work starts while the network's session opens
-        calibrator = Calibrator(model, threads=threads, conf=conf, first_pair=(images[0], images[1]))
+        first = None if rotate else (images[0], images[1])  # the turned pair's work starts in calibrate
+        calibrator = Calibrator(model, threads=threads, conf=conf, first_pair=first)
     elif focal_sigma is not None:
         raise StereoGeoError("give focal_sigma in the calibrator's conf (known_focal_sigma) when reusing one")
     found = None
     if exif and None not in paths:
         found = exif_focals(paths, images)
     return calibrator.calibrate(
-        images[0], images[1], baseline_m=baseline, focal_left=focal_left, focal_right=focal_right, exif=found
+        images[0],
+        images[1],
+        baseline_m=baseline,
+        focal_left=focal_left,
+        focal_right=focal_right,
+        exif=found,
+        rotate=rotate,
     )

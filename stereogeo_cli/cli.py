@@ -379,6 +379,26 @@ LinesFlag = Annotated[
 ]  # calibrate and batch-calibrate
 
 
+RotateOption = Annotated[
+    int,
+    typer.Option(
+        "--rotate",
+        help="Degrees to turn both images clockwise before they are read (0, 90, 180 or 270): for a rig "
+        "mounted upside down (180) or on its side. The network knows views rolled by at most 45° and reads a "
+        "turned view as upright, so without it such a rig's gravity comes out reversed, with no warning. The "
+        "calibration is written for the images as they are.",
+        metavar="DEG",
+    ),
+]  # calibrate, batch-calibrate and calibrate-sequence
+
+
+def _check_rotate(rotate: int) -> None:
+    from stereogeo_cli.geometry import TURNS_DEG
+
+    if rotate not in TURNS_DEG:
+        raise StereoGeoError(f"--rotate must be 0, 90, 180 or 270, got {rotate}")
+
+
 ExifFlag = Annotated[
     bool,
     typer.Option(
@@ -433,6 +453,7 @@ def calibrate(
     pinhole: PinholeFlag = False,
     lines: LinesFlag = True,
     exif: ExifFlag = True,
+    rotate: RotateOption = 0,
     model: Annotated[
         Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
     ] = None,
@@ -440,6 +461,7 @@ def calibrate(
 ) -> None:
     """Calibrate a stereo camera from one image pair: focal lengths, gravity (roll, pitch), R and T."""
     _check_calibrate_options(baseline, focal_left, focal_right, focal_sigma, threads)
+    _check_rotate(rotate)
     names = _formats(formats)
     if output is not None:
         _check_output_folder(output)
@@ -450,7 +472,8 @@ def calibrate(
 
     result = calibrate_pair(
         left, right, baseline=baseline, focal_left=focal_left, focal_right=focal_right,
-        focal_sigma=focal_sigma, pinhole=pinhole, lines=lines, exif=exif, model=model, threads=threads,
+        focal_sigma=focal_sigma, pinhole=pinhole, lines=lines, exif=exif, rotate=rotate, model=model,
+        threads=threads,
     )  # fmt: skip
     written = write_calibration(output, result.calibration, names) if output is not None else []
     if preview is not None:
@@ -527,6 +550,7 @@ def batch_calibrate(
     pinhole: PinholeFlag = False,
     lines: LinesFlag = True,
     exif: ExifFlag = True,
+    rotate: RotateOption = 0,
     model: Annotated[
         Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
     ] = None,
@@ -567,6 +591,7 @@ def batch_calibrate(
         raise StereoGeoError(f"--baseline must be a positive number, got {baseline}")
     if threads < 0 or workers < 1:
         raise StereoGeoError("--threads must be 0 or more and --workers 1 or more")
+    _check_rotate(rotate)
     from stereogeo_cli.batch import parse_shard, run_batch
     from stereogeo_cli.batch.interrupt import interruptible
 
@@ -577,7 +602,8 @@ def batch_calibrate(
         summary = run_batch(
             folder, output, formats=names, baseline_m=baseline, model=model, threads=threads,
             workers=workers, same_rig=same_rig, shard=shard_spec, progress=sys.stderr.isatty(),
-            pinhole=pinhole, lines=lines, exif=exif, resume=resume, overwrite=overwrite, stop=stop,
+            pinhole=pinhole, lines=lines, exif=exif, rotate=rotate, resume=resume, overwrite=overwrite,
+            stop=stop,
         )  # fmt: skip
     total, left = len(summary.outcomes), summary.not_run
     ok = total - summary.failed - left
@@ -675,6 +701,7 @@ def calibrate_sequence(
         float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the metric scale.")
     ] = None,
     pinhole: PinholeFlag = False,
+    rotate: RotateOption = 0,
     workspace: Annotated[
         Path | None,
         typer.Option(help="Keep COLMAP's images and database in this folder (default: a temporary one)."),
@@ -691,6 +718,7 @@ def calibrate_sequence(
     """Calibrate a stereo rig from a sequence of its frame pairs (a drive, a robot's run, a hand-held
     sweep): COLMAP's bundle adjustment over the frames fixes the focal lengths where the rig turns."""
     _check_calibrate_options(baseline, None, None, None, threads)
+    _check_rotate(rotate)
     for name, value in (("--every", every), ("--max-frames", max_frames)):
         if value is not None and value < 1:
             raise typer.BadParameter(f"must be at least 1, got {value}", param_hint=name)
@@ -715,7 +743,7 @@ def calibrate_sequence(
         calibrator = Calibrator(model, threads=threads, conf=calibrator_conf(pinhole))
         result = run_sequence(
             frames, calibrator, baseline_m=baseline, pinhole=pinhole, workspace=workspace,
-            progress=bar, stop=stop,
+            progress=bar, stop=stop, rotate=rotate,
         )  # fmt: skip
     if stop.requested:
         typer.echo(f"error: interrupted by {stop.name}: nothing was written", err=True)

@@ -31,6 +31,7 @@ from stereogeo_cli.fuse.pose import default_conf as fuse_conf
 from stereogeo_cli.fuse.scale import DepthField, baseline_from_depth
 from stereogeo_cli.fuse.scale import default_conf as scale_conf
 from stereogeo_cli.geometry import (
+    ImageTurn,
     intrinsic_matrix,
     principal_point,
     rotation_angle,
@@ -49,7 +50,7 @@ from stereogeo_cli.network.runtime import (
 from stereogeo_cli.refine import CameraFit, combine_focal, parse_sigma_inflation, refine_camera
 from stereogeo_cli.refine.lines import default_conf as lines_conf
 from stereogeo_cli.refine.lines import detect_segments, detector_pixel, gravity_with_lines
-from stereogeo_cli.refine.lm import FieldSamples, field_samples
+from stereogeo_cli.refine.lm import FieldSamples, field_samples, vfov_sigma_deg
 from stereogeo_cli.refine.lm import default_conf as refine_default_conf
 from stereogeo_cli.refine.manhattan import ManhattanFocal, stable_manhattan_focal
 from stereogeo_cli.refine.manhattan import default_conf as manhattan_conf
@@ -169,6 +170,48 @@ class CalibrationResult:
             self, calibration=calibration, left=self.right, right=self.left, pose=mirrored_pose,
             matches=matches, focal_sources=self.focal_sources[::-1],
         )  # fmt: skip
+
+    def turned_back(self, turn: ImageTurn) -> CalibrationResult:
+        """This result, found in images turned by ``turn``, for the images as they were: each camera frame
+        rolled back about its optical axis (gravity, R, T), image sizes, K and the matches turned back; focal
+        lengths, the lens, the sigmas of the focal length, roll and pitch and the report's other keys are
+        unchanged by a roll."""
+        if turn.quarters == 0:
+            return self
+        back = turn.rotation.T  # X = back @ X_turned
+        c = self.calibration
+
+        def camera(K, size, gravity, sigma):
+            width, height = turn.size_back(size)
+            focal = float(K[0, 0])
+            if sigma is not None and sigma.get("focal_px") is not None and turn.quarters % 2:
+                sigma = {**sigma, "vfov_deg": vfov_sigma_deg(focal, height, sigma["focal_px"] / focal)}
+            g = None if gravity is None else back @ gravity
+            return intrinsic_matrix(focal, width, height), (width, height), g, sigma
+
+        K_l, size_l, g_l, s_l = camera(c.K_left, c.image_size_left, c.gravity_left, c.sigma_left)
+        K_r, size_r, g_r, s_r = camera(c.K_right, c.image_size_right, c.gravity_right, c.sigma_right)
+        calibration = replace(
+            c, K_left=K_l, K_right=K_r, image_size_left=size_l, image_size_right=size_r,
+            R=back @ c.R @ turn.rotation, T=back @ c.T, gravity_left=g_l, gravity_right=g_r, sigma_left=s_l,
+            sigma_right=s_r, extra_report={**c.extra_report, "rotate_deg": turn.degrees},
+        )  # fmt: skip
+
+        def fit(f: CameraFit) -> CameraFit:
+            width, height = turn.size_back((f.width, f.height))
+            return replace(f, width=width, height=height, gravity_up=back @ f.gravity_up)
+
+        R, t = back @ self.pose.R @ turn.rotation, back @ self.pose.t_direction
+        pose = replace(self.pose, R=R, t_direction=t, start=None)
+        matches = None
+        if self.matches is not None:
+            sizes = (self.left.width, self.left.height), (self.right.width, self.right.height)
+            matches = Matches(
+                turn.points_back(self.matches.left, turn.size_back(sizes[0])),
+                turn.points_back(self.matches.right, turn.size_back(sizes[1])),
+            )
+        left, right = fit(self.left), fit(self.right)
+        return replace(self, calibration=calibration, left=left, right=right, pose=pose, matches=matches)
 
 
 def _flat_futures(work) -> list:
@@ -366,6 +409,7 @@ class Calibrator:
         self._features_lock = threading.Lock()
         self._view_samples: dict[int, tuple[ViewFields, FieldSamples]] = {}
         self._ahead: tuple | None = None  # (left, right, image work) of the pair to be calibrated next
+        self._turned_memo: tuple | None = None  # (left, right, turn, both turned): Calibrator._turned
         if first_pair is not None:
             check_pair(*first_pair)
             self._ahead = (*first_pair, self._start_image_work(*first_pair))
@@ -674,6 +718,7 @@ class Calibrator:
         focal_right: float | None = None,
         exif: tuple[tuple[FocalPrior | None, str | None], tuple[FocalPrior | None, str | None]] | None = None,
         upcoming: Callable[[], tuple[np.ndarray, np.ndarray] | None] | None = None,
+        rotate: int = 0,
     ) -> CalibrationResult:
         """Calibrate one pair of RGB images [H x W x 3] uint8 (the two sizes may differ).
 
@@ -689,36 +734,65 @@ class Calibrator:
                 (else None): once this pair's work is all on the pool, the next pair's image work starts
                 there, on the core this pair's last stages leave idle, and the next :meth:`calibrate` of
                 those same arrays takes it up. The results are the same as without it.
+            rotate: degrees (0, 90, 180 or 270) to turn both images clockwise before they are read, for a
+                rig mounted upside down (180) or on its side: the network knows views rolled by at most 45°
+                and reads a turned view as upright, so without it such a rig's gravity comes out reversed
+                (or a quarter turn off), and no warning can tell. The result is for the images as given
+                (:meth:`CalibrationResult.turned_back`).
         Raises:
             CalibrationFailed: the images are blank or the fields too ambiguous to trust.
 
-        A pair whose right camera turns out to sit to the left of the left one (T_x > 0: the files were
-        most likely swapped) is calibrated again in the other order and the mirror of that is returned,
-        with a warning: the pose head learnt rigs with the right camera on the right, and its read of a
-        swapped pair is worse, so a pair and its swap give the same rig. A rig mounted upside down looks the
-        same in its images, and the network, which knows views rolled by up to 45°, reads them as upright:
-        such a rig's gravity comes out reversed, which the warning names.
+        A pair whose right camera turns out to sit to the left of the left one in the images as read (T_x >
+        0) is calibrated again in the other order and the mirror of that is returned: the pose head learnt
+        rigs with the right camera on the right, and its read of a swapped pair is worse, so a pair and its
+        swap give the same rig. Where the right camera still sits to the left in the left camera's own
+        frame, the files were most likely swapped, and a warning says so.
         """
         exif = exif or ((None, None), (None, None))
+        turn = ImageTurn(rotate)
+        left, right = self._turned(turn, left, right)
+        if upcoming is not None and turn.quarters:
+            upcoming = self._turning(upcoming, turn)
         if self._ahead is not None and not (self._ahead[0] is left and self._ahead[1] is right):
             self._drop_ahead()  # started for a pair that is not the one calibrated now
         result = self._calibrate_in_order(
             left, right, baseline_m=baseline_m, focal_left=focal_left, focal_right=focal_right, exif=exif,
             upcoming=upcoming,
         )  # fmt: skip
-        if result.calibration.T[0] <= 0:
-            return result
-        swapped = self._calibrate_in_order(
-            right, left, baseline_m=baseline_m, focal_left=focal_right, focal_right=focal_left,
-            exif=(exif[1], exif[0]),
-        )  # fmt: skip
-        note = (
-            "the right camera sits to the left of the left one (T_x > 0): were the two images swapped, or is "
-            "the rig upside down (its gravity then comes out reversed)?"
-        )
-        if swapped.calibration.T[0] >= 0:  # neither order puts the right camera on the right
-            return result.with_warning(note)
-        return swapped.mirrored().with_warning(note)
+        if result.calibration.T[0] > 0:
+            swapped = self._calibrate_in_order(
+                right, left, baseline_m=baseline_m, focal_left=focal_right, focal_right=focal_left,
+                exif=(exif[1], exif[0]),
+            )  # fmt: skip
+            if swapped.calibration.T[0] < 0:
+                result = swapped.mirrored()
+        result = result.turned_back(turn)
+        T = result.calibration.T
+        if T[0] > abs(T[1]):
+            result = result.with_warning(
+                "the right camera sits to the left of the left one (T_x > 0): were the two images swapped?"
+                + ("" if turn.quarters else " (A rig mounted upside down needs --rotate 180.)")
+            )
+        return result
+
+    def _turning(self, upcoming: Callable, turn: ImageTurn) -> Callable:
+        """``upcoming`` giving the next pair turned (:meth:`_turned`)."""
+
+        def turned():
+            pair = upcoming()
+            return None if pair is None else self._turned(turn, *pair)
+
+        return turned
+
+    def _turned(self, turn: ImageTurn, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The pair turned (``ImageTurn.image``), as the same arrays when the same pair comes again: the
+        next pair's work started ahead on its turned images is found by their identity."""
+        memo = self._turned_memo
+        if memo is not None and memo[0] is left and memo[1] is right and memo[2] == turn:
+            return memo[3], memo[4]
+        pair = turn.image(left), turn.image(right)
+        self._turned_memo = (left, right, turn, *pair) if turn.quarters else None
+        return pair
 
     def _calibrate_in_order(
         self,

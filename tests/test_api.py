@@ -59,19 +59,61 @@ def test_swapped_pair_gives_the_mirrored_rig(example_pair, onnx_model):
     assert not any("swapped" in note for note in direct.notes.split("; "))
 
 
-def test_an_upside_down_rig_is_warned_of_and_its_gravity_comes_out_reversed(example_pair, onnx_model):
-    """Both images turned 180°: the right camera now sits left of the left one, as with swapped files. The
-    network knows views rolled by up to 45° and reads the turned views as upright, so the gravity comes out
-    reversed, as the warning says: the true up of a turned camera is (-x, -y, z) of the upright one's."""
+def test_a_rig_mounted_upside_down_is_calibrated_with_rotate_180(example_pair, onnx_model):
+    """The rig turned 180° about its view: the camera named left now sees what the right one saw, turned. The
+    network knows views rolled by up to 45° and reads turned views as upright, so without ``rotate`` the
+    gravity comes out reversed and nothing warns (in each camera's own frame the other still sits where it
+    did). With ``rotate=180`` each camera gets the upright rig's reading, turned into its frame exactly."""
+    calibrator = stereogeo_cli.Calibrator(onnx_model, threads=1)
+    left, right = [stereogeo_cli.load_image(p) for p in example_pair]
+    upright = calibrator.calibrate(left, right).calibration
+    turned = [np.ascontiguousarray(image[::-1, ::-1]) for image in (right, left)]  # (named left, named right)
+    turn = np.diag([-1.0, -1.0, 1.0])  # X_named_left = turn @ X_upright_right, and likewise for the other
+    truth_up = (turn @ upright.gravity_right, turn @ upright.gravity_left)
+
+    plain = calibrator.calibrate(*turned).calibration
+    assert plain.T[0] < 0 and not plain.notes
+    for got, up in zip((plain.gravity_left, plain.gravity_right), truth_up, strict=True):
+        assert np.degrees(gravity_angle(got, up)) > 170.0
+
+    rotated = calibrator.calibrate(*turned, rotate=180).calibration
+    assert not rotated.notes
+    assert rotated.K_left[0, 0] == pytest.approx(upright.K_right[0, 0], rel=1e-9)
+    assert rotated.K_right[0, 0] == pytest.approx(upright.K_left[0, 0], rel=1e-9)
+    for got, up in zip((rotated.gravity_left, rotated.gravity_right), truth_up, strict=True):
+        assert np.degrees(gravity_angle(got, up)) < 1e-6
+    assert np.degrees(rotation_angle(rotated.R.T @ (turn @ upright.R.T @ turn))) < 1e-6
+    np.testing.assert_allclose(rotated.T, turn @ (-upright.R.T @ upright.T), atol=1e-9)
+    assert rotated.to_report()["rotate_deg"] == 180
+    assert rotated.to_report()["left"]["roll_deg"] == pytest.approx(
+        upright.to_report()["right"]["roll_deg"] + 180.0, abs=1e-6
+    )
+
+
+def test_a_quarter_turn_swaps_the_image_sizes_and_turns_the_frames_back(example_pair, onnx_model):
+    """Images turned a quarter counter-clockwise and read with ``rotate=90``: the network reads the upright
+    pair, and the result is that pair's in the turned cameras' frames, sizes, K and vFoV sigma."""
     calibrator = stereogeo_cli.Calibrator(onnx_model, threads=1)
     images = [stereogeo_cli.load_image(p) for p in example_pair]
-    upright = calibrator.calibrate(*images).calibration
-    turned = calibrator.calibrate(*[np.ascontiguousarray(image[::-1, ::-1]) for image in images]).calibration
-    assert turned.T[0] > 0
-    assert any("upside down" in note and "reversed" in note for note in turned.notes.split("; "))
-    pairs = ((turned.gravity_left, upright.gravity_left), (turned.gravity_right, upright.gravity_right))
-    for got, up in pairs:
-        assert np.degrees(gravity_angle(got, [up[0], up[1], -up[2]])) < 5.0
+    upright = calibrator.calibrate(*images)
+    got = calibrator.calibrate(*[np.ascontiguousarray(np.rot90(i)) for i in images], rotate=90)
+    back = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # X_given = back @ X_upright
+    c, u = got.calibration, upright.calibration
+    assert c.image_size_left == (480, 640) and c.K_left[0, 2] == 240 and c.K_left[1, 2] == 320
+    assert c.K_left[0, 0] == pytest.approx(u.K_left[0, 0], rel=1e-12)
+    assert np.degrees(gravity_angle(c.gravity_left, back @ u.gravity_left)) < 1e-6
+    assert np.degrees(rotation_angle(c.R.T @ (back @ u.R @ back.T))) < 1e-6
+    np.testing.assert_allclose(c.T, back @ u.T, atol=1e-12)
+    report = c.to_report()["left"]
+    f, s = report["focal_px"], report["sigma"]["focal_px"]
+    assert report["sigma"]["vfov_deg"] == pytest.approx(np.degrees(640 * f / (f * f + 640**2 / 4) * s / f))
+    x, y = upright.matches.left.T  # upright pixel (x, y) is pixel (y, 639 - x) of the image turned back
+    np.testing.assert_allclose(got.matches.left, np.column_stack([y, 639 - x]), atol=1e-9)
+
+
+def test_rotate_takes_quarter_turns_only(example_pair, onnx_model):
+    with pytest.raises(stereogeo_cli.StereoGeoError, match="rotate"):
+        stereogeo_cli.calibrate(*example_pair, rotate=45, model=onnx_model)
 
 
 def test_the_next_pairs_image_work_started_ahead_gives_the_same_calibration(example_pair, onnx_model):

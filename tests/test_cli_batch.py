@@ -594,6 +594,10 @@ def test_resume_calibrates_again_what_does_not_match(small_images, onnx_model, t
     for name in "abc":
         assert sorted(p.name for p in (out / name).iterdir()) == [MARKER, "report.json"]
         assert json.loads((out / name / MARKER).read_text())["options"]["lines"] is False
+    result = invoke(*base, "--format", "json", "--resume", "--no-lines", "--rotate", "180")
+    assert result.exit_code == 0 and "resuming: 0 of 3 pairs" in result.stderr, result.output
+    assert json.loads((out / "a" / MARKER).read_text())["options"]["rotate_deg"] == 180
+    assert json.loads((out / "a" / "report.json").read_text())["rotate_deg"] == 180
 
 
 # The real command in a subprocess, stopped as a terminal's Ctrl-C or a cluster's time limit stops it: the

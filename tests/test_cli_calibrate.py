@@ -188,6 +188,23 @@ def test_bad_baseline(pair, onnx_model, value):
     assert_error(invoke("calibrate", *pair, "--model", onnx_model, "--baseline", value), 2, "--baseline")
 
 
+def test_rotate_takes_quarter_turns(pair, onnx_model):
+    assert_error(invoke("calibrate", *pair, "--model", onnx_model, "--rotate", "45"), 2, "--rotate", "180")
+
+
+def test_rotate_reaches_the_report(pair, onnx_model, tmp_path):
+    """An upside-down pair read with --rotate 180: the network reads the upright pair, so the gravity written
+    is the upright reading turned by 180° about the view (roll +180°, pitch the same)."""
+    upright = json.loads(invoke("calibrate", *pair, "--model", onnx_model, "--json").stdout)
+    turned = [write_rgb(tmp_path / f"{n}.png", rgb(p)[::-1, ::-1]) for n, p in zip("lr", pair, strict=True)]
+    result = invoke("calibrate", turned[1], turned[0], "--model", onnx_model, "--json", "--rotate", "180")
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    assert report["rotate_deg"] == 180 and not report["warnings"]
+    assert report["left"]["roll_deg"] == pytest.approx(upright["right"]["roll_deg"] + 180, abs=1e-6)
+    assert report["left"]["pitch_deg"] == pytest.approx(upright["right"]["pitch_deg"], abs=1e-6)
+
+
 def test_baseline_that_is_not_a_number(pair, onnx_model):
     result = invoke("calibrate", *pair, "--model", onnx_model, "--baseline", "ten")
     assert result.exit_code == 2 and "Traceback" not in result.output  # Click's usage error

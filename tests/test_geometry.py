@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from stereogeo_cli.geometry import (
+    ImageTurn,
     apply_resize_crop,
     axis_angle_from_rotation,
     closest_rotation,
@@ -124,6 +125,27 @@ def test_vfov_focal_round_trip():
     assert float(focal_from_vfov(np.radians(90.0), 480)) == pytest.approx(240.0)
     K = intrinsic_matrix(500.0, 640, 480)
     np.testing.assert_allclose(K, [[500, 0, 320], [0, 500, 240], [0, 0, 1]])
+
+
+@pytest.mark.parametrize("degrees", [0, 90, 180, 270])
+def test_an_image_turn_maps_every_pixel_and_ray_back(degrees):
+    """Each pixel of a turned image comes from the original pixel ``points_back`` names, and the ray through
+    it is the original ray turned by ``rotation`` (about the images' centres)."""
+    width, height, f = 7, 5, 3.0
+    image = np.arange(width * height).reshape(height, width)
+    turn = ImageTurn(degrees)
+    turned = turn.image(image)
+    h, w = turned.shape
+    assert turn.size_back((w, h)) == (width, height)
+    ys, xs = np.mgrid[0:h, 0:w]
+    back = turn.points_back(np.stack([xs, ys], axis=-1), (width, height))
+    x, y = back[..., 0].astype(int), back[..., 1].astype(int)
+    np.testing.assert_array_equal(image[y, x], turned)
+    rays = np.stack([back[..., 0] - (width - 1) / 2, back[..., 1] - (height - 1) / 2, np.full((h, w), f)], -1)
+    turned_rays = np.stack([xs - (w - 1) / 2, ys - (h - 1) / 2, np.full((h, w), f)], -1)
+    np.testing.assert_allclose(rays @ turn.rotation.T, turned_rays, atol=1e-12)
+    with pytest.raises(ValueError, match="90"):
+        ImageTurn(45)
 
 
 @pytest.mark.parametrize(("width", "height"), [(640, 480), (480, 640), (752, 480), (1920, 1080), (333, 333)])

@@ -42,9 +42,13 @@ def model_identity(model: str | os.PathLike | None) -> dict[str, str | None]:
     return {"file": path.name, "sha256": digest}
 
 
-def pair_options(model: dict, baseline_m: float | None, pinhole: bool, lines: bool, exif: bool) -> dict:
-    """The options a pair's results depend on, as its marker records them (``model``: the report's block)."""
-    return {
+def pair_options(
+    model: dict, baseline_m: float | None, pinhole: bool, lines: bool, exif: bool, rotate: int = 0
+) -> dict:
+    """The options a pair's results depend on, as its marker records them (``model``: the report's block).
+    ``rotate`` is recorded where it is not 0, so that the markers of unturned pairs name the options alone
+    that they depend on."""
+    options = {
         "stereogeo": __version__,
         "model": {"file": model.get("file"), "sha256": model.get("sha256")},
         "baseline_m": None if baseline_m is None else float(baseline_m),
@@ -52,6 +56,7 @@ def pair_options(model: dict, baseline_m: float | None, pinhole: bool, lines: bo
         "lines": bool(lines),
         "exif": bool(exif),
     }
+    return options | ({"rotate_deg": int(rotate)} if rotate else {})
 
 
 def _inputs(left: Path, right: Path) -> dict[str, dict[str, str]]:

@@ -57,6 +57,7 @@ class PairJob:
     pinhole: bool = False  # --pinhole: fit no lens distortion
     lines: bool = True  # --no-lines: gravity from the fields alone, no vertical line segments
     exif: bool = True  # --no-exif: no EXIF focal length as a prior
+    rotate: int = 0  # --rotate: degrees both images are turned clockwise before they are read
 
 
 @dataclass
@@ -172,7 +173,7 @@ def calibrate_pair(
         left, right, exif = loading.result() if loading is not None else load_entry(entry, job)
         result = calibrator.calibrate(
             left, right, baseline_m=job.baseline_m, focal_left=job.focal_left, focal_right=job.focal_right,
-            exif=exif, upcoming=upcoming,
+            exif=exif, upcoming=upcoming, rotate=job.rotate,
         )  # fmt: skip
         report = _json_safe(result.report())
         evidence = _evidence(result) if job.keep_evidence else None
@@ -180,7 +181,7 @@ def calibrate_pair(
             from stereogeo_cli.batch.resume import pair_options, write_pair_files
 
             options = pair_options(
-                report.get("model") or {}, job.baseline_m, job.pinhole, job.lines, job.exif
+                report.get("model") or {}, job.baseline_m, job.pinhole, job.lines, job.exif, job.rotate
             )
             try:
                 with protected():  # the pair's files and marker all written, even if a second Ctrl-C comes
@@ -515,6 +516,7 @@ def run_batch(
     pinhole: bool = False,
     lines: bool = True,
     exif: bool = True,
+    rotate: int = 0,
     resume: bool = False,
     overwrite: bool = False,
     stop: Stop | None = None,
@@ -528,6 +530,8 @@ def run_batch(
         pinhole: the images have no lens distortion (rectified or undistorted): none is fitted.
         lines: fit each camera's gravity to the image's vertical line segments too (docs/refine.md).
         exif: take each photo's EXIF focal length as a prior (stereogeo_cli/io/exif.py).
+        rotate: degrees (0, 90, 180 or 270) to turn both images of every pair clockwise before they are read
+            (``Calibrator.calibrate``); the results are for the images as they are.
         resume: take each pair whose folder holds a complete calibration made with the same options, model
             and images (stereogeo_cli/batch/resume.py) from it, and calibrate the others.
         overwrite: replace what ``out_dir`` holds. Without ``resume`` or ``overwrite``, an ``out_dir`` that
@@ -577,7 +581,7 @@ def run_batch(
 
     job = PairJob(
         out_dir, formats, baseline_m, model, threads, keep_evidence=same_rig, pinhole=pinhole, lines=lines,
-        exif=exif,
+        exif=exif, rotate=rotate,
     )  # fmt: skip
     outcomes_by_name: dict[str, PairOutcome] = {}
     done: list[PairOutcome | None] = [None] * len(pairs)
@@ -591,7 +595,7 @@ def run_batch(
         try:
             if resume:
                 options = resuming.pair_options(
-                    resuming.model_identity(model), baseline_m, pinhole, lines, exif
+                    resuming.model_identity(model), baseline_m, pinhole, lines, exif, rotate
                 )
                 for i, e in enumerate(pairs):
                     if stop is not None and stop.requested:

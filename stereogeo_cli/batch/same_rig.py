@@ -260,7 +260,7 @@ def same_rig_calibration(outcomes, job: PairJob, workers, calibrator, bar: _Prog
     second_job = PairJob(
         None, job.formats, job.baseline_m, job.model, job.threads,
         focal_left=focals[0].focal_px, focal_right=focals[1].focal_px, keep_evidence=True,
-        pinhole=job.pinhole, lines=job.lines, exif=job.exif,
+        pinhole=job.pinhole, lines=job.lines, exif=job.exif, rotate=job.rotate,
     )  # fmt: skip
     if stop is not None and stop.requested:
         return None

@@ -31,6 +31,53 @@ def intrinsic_matrix(focal: float, width: float, height: float) -> np.ndarray:
     return np.array([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]])
 
 
+TURNS_DEG = (0, 90, 180, 270)
+
+
+@dataclass(frozen=True)
+class ImageTurn:
+    """Images turned clockwise by ``degrees`` (0, 90, 180 or 270) before they are read, for cameras mounted
+    upside down or on their side: the network knows views rolled by at most 45°.
+
+    A turned image is the image of a virtual camera rolled about its optical axis (``rotation``), and what is
+    found in it is turned back exactly: points with :meth:`points_back`, camera-frame vectors with
+    ``rotation.T``. The principal point stays the project's (w/2, h/2) of each image, one pixel from where
+    the turn carries the other one's: far below what one pair can tell of it.
+    """
+
+    degrees: int = 0
+
+    def __post_init__(self) -> None:
+        if self.degrees not in TURNS_DEG:
+            raise ValueError(f"a turn is 0, 90, 180 or 270 degrees, got {self.degrees}")
+
+    @property
+    def quarters(self) -> int:
+        return self.degrees // 90
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """[3 x 3] with ``X_turned = rotation @ X`` in camera coordinates (x right, y down, z forward)."""
+        quarter = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        return np.linalg.matrix_power(quarter, self.quarters)
+
+    def image(self, image: np.ndarray) -> np.ndarray:
+        """The image turned (the same array for 0°)."""
+        return image if self.quarters == 0 else np.ascontiguousarray(np.rot90(image, -self.quarters))
+
+    def size_back(self, size: tuple[int, int]) -> tuple[int, int]:
+        """The original (width, height) of a turned image's size."""
+        return (size[1], size[0]) if self.quarters % 2 else (size[0], size[1])
+
+    def points_back(self, points: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+        """Pixels [... x 2] of a turned image → the original image's, of ``size`` (width, height)."""
+        p = np.asarray(points, dtype=float)
+        x, y = p[..., 0], p[..., 1]
+        w, h = size
+        back = {0: (x, y), 1: (y, h - 1 - x), 2: (w - 1 - x, h - 1 - y), 3: (w - 1 - y, x)}[self.quarters]
+        return np.stack(back, axis=-1)
+
+
 @dataclass(frozen=True)
 class ResizeCrop:
     """An image resized by ``scale`` then cropped to ``out_size`` starting at ``crop`` (resized pixels).

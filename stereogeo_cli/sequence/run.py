@@ -161,10 +161,12 @@ class FrameReadings:
 def read_frames(
     source: FrameSource, calibrator, images: Path, *, baseline_m: float | None,
     progress: Callable[[int, int | None], None] | None = None, stop=None, conf: dict | None = None,
+    rotate: int = 0,
 ) -> FrameReadings:  # fmt: skip
     """Write each frame of ``source`` into ``images/{left,right}/``, detect its features, and calibrate
     its pair as ``calibrate`` does: every pair of a sequence of up to ``max_pairs_calibrated``, else evenly
-    spaced pairs up to about that many (they are evidence to combine, and each costs a calibration)."""
+    spaced pairs up to about that many (they are evidence to combine, and each costs a calibration), each
+    turned by ``rotate`` degrees as ``Calibrator.calibrate`` does."""
     conf = {**default_conf, **(conf or {})}
     for sensor in colmap.SENSORS:
         (images / sensor).mkdir(parents=True, exist_ok=True)
@@ -183,7 +185,7 @@ def read_frames(
         _write_frame(images, frame, f"{frame.index:06d}.png", (features, segments), conf)
         if len(frames) % stride == 0:
             try:
-                result = calibrator.calibrate(frame.left, frame.right, baseline_m=baseline_m)
+                result = calibrator.calibrate(frame.left, frame.right, baseline_m=baseline_m, rotate=rotate)
                 readings.append(_reading(frame.index, result))
             except CalibrationFailed as error:
                 warnings.append(f"frame {frame.name}: {error}")
@@ -444,11 +446,13 @@ def calibrate_sequence(
     progress: Callable[[int, int | None], None] | None = None,
     workspace: str | Path | None = None,
     stop=None,
+    rotate: int = 0,
 ) -> SequenceResult | None:
     """Calibrate the rig of ``source``'s frames (see the module's docstring for the stages).
 
     ``calibrator``: a :class:`~stereogeo_cli.pipeline.Calibrator` (one network session for every pair);
     ``workspace``: a folder for COLMAP's images and database (default: a temporary one, removed after);
+    ``rotate``: degrees to turn each pair clockwise before the network reads it (a rig upside down: 180);
     ``stop``: a :class:`~stereogeo_cli.batch.interrupt.Stop`: once it is requested the run ends after the
     frame or COLMAP stage in flight and returns None (nothing half done is returned).
     """
@@ -457,7 +461,7 @@ def calibrate_sequence(
     try:
         read = read_frames(
             source, calibrator, folder / "images", baseline_m=baseline_m, progress=progress, stop=stop,
-            conf=conf,
+            conf=conf, rotate=rotate,
         )  # fmt: skip
         if progress is not None:
             progress(len(read.frames), len(read.frames), "COLMAP: matching, mapping, adjusting")
