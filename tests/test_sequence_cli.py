@@ -103,6 +103,46 @@ def test_the_files_load_in_their_readers(turning):
     np.testing.assert_allclose(first, 0.0, atol=1e-9)  # the world starts at the first left camera
 
 
+def test_a_rig_mounted_upside_down_gets_its_gravity_with_rotate_180(tmp_path, turning):
+    """The turning rig turned 180° about its view, its cameras keeping their names (each sees the other's
+    view turned): without --rotate every frame's gravity comes out reversed; with it, as upright."""
+    import cv2
+
+    folder, truth, _, upright = turning
+    turned = tmp_path / "turned"
+    for side, other in (("left", "right"), ("right", "left")):
+        (turned / side).mkdir(parents=True)
+        for path in sorted((folder / other).iterdir()):
+            cv2.imwrite(
+                str(turned / side / path.name), cv2.imread(str(path), cv2.IMREAD_UNCHANGED)[::-1, ::-1]
+            )
+    up, R = np.array(truth["gravity_up_world"]), np.array(truth["R"])
+    flip = np.diag([-1.0, -1.0, 1.0])  # the named left camera's frame is the right camera's turned
+
+    def errors(report):
+        out = []
+        for frame in report["sequence"]["frames"]:
+            g = flip @ R @ np.array(truth["gt_poses"][frame["index"]])[:3, :3].T @ up
+            out.append(math.degrees(math.acos(np.clip(g @ np.array(frame["left"]["gravity_up"]), -1, 1))))
+        return np.array(out)
+
+    plain = json.loads(_stereogeo("calibrate-sequence", turned, "--json", "--no-progress").stdout)
+    assert np.median(errors(plain)) > 170
+    report = json.loads(
+        _stereogeo("calibrate-sequence", turned, "--json", "--no-progress", "--rotate", "180").stdout
+    )
+    assert report["sequence"]["frames_registered"] == 16
+    assert np.median(errors(report)) < min(3 * report["sequence"]["world"]["sigma_up_deg"], 2.5)
+    assert report["left"]["focal_px"] == pytest.approx(upright["right"]["focal_px"], rel=0.015)
+    T_upright = flip @ (-np.array(upright["R"]).T @ np.array(upright["T"]))
+    assert (
+        np.degrees(
+            np.arccos(T_upright @ report["T"] / np.linalg.norm(T_upright) / np.linalg.norm(report["T"]))
+        )
+        < 1
+    )
+
+
 def test_a_static_rig_is_calibrated_from_its_pairs_and_says_so(tmp_path):
     folder = _render(tmp_path / "seq", "static", 4, 7)
     done = _stereogeo("calibrate-sequence", folder, "--json", check=False)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from stereogeo_cli.geometry import gravity_from_roll_pitch, quaternion_to_rotation, rotation_from_axis_angle
-from stereogeo_cli.sequence.colmap import AdjustedCamera
+from stereogeo_cli.sequence.colmap import AdjustedCamera, cam_from_new_world
 from stereogeo_cli.sequence.evidence import (
     FocalEvidence,
     combine_adjusted_focal,
@@ -172,3 +172,17 @@ def test_vertical_segments_seen_from_many_poses_give_the_world_up():
     combined, sigma, apart = combine_ups(start / np.linalg.norm(start), 2.0, found, information)
     assert math.degrees(math.acos(min(1.0, combined @ up))) < 0.1 and sigma < 0.2 and apart < 3
     assert up_from_segments(others[:20], owners[:20], start)[0] is None  # too few: not used
+
+
+def test_a_camera_in_the_scaled_world_stays_a_rotation_and_a_metric_translation():
+    """The reconstruction moved by a similarity (scale 2.5: COLMAP's units to metres): each camera's new
+    world→camera transform is rigid, and maps a moved point to the camera coordinates scaled likewise."""
+    rng = np.random.default_rng(3)
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = rotation_from_axis_angle(rng.normal(size=3)), rng.normal(size=3)
+    moved = np.eye(4)
+    moved[:3, :3], moved[:3, 3] = 2.5 * rotation_from_axis_angle(rng.normal(size=3)), rng.normal(size=3)
+    new = cam_from_new_world(pose, moved)
+    np.testing.assert_allclose(new[:3, :3] @ new[:3, :3].T, np.eye(3), atol=1e-12)
+    point = np.append(rng.normal(size=3), 1.0)
+    np.testing.assert_allclose(new @ (moved @ point), np.append(2.5 * (pose @ point)[:3], 1.0), atol=1e-12)

@@ -441,6 +441,17 @@ def align_world(model: SequenceModel, up: np.ndarray, scale: float) -> np.ndarra
     return S
 
 
+def cam_from_new_world(cam_from_world: np.ndarray, new_from_old: np.ndarray) -> np.ndarray:
+    """A camera's rigid world→camera transform [4 x 4] in the world a similarity ``new_from_old``
+    (:func:`align_world`'s) moved the reconstruction into: a rotation and a translation in the new world's
+    units (``cam_from_world @ inv(new_from_old)`` alone is that transform divided by the similarity's
+    scale)."""
+    scale = float(np.cbrt(np.linalg.det(new_from_old[:3, :3])))
+    moved = cam_from_world @ np.linalg.inv(new_from_old)
+    moved[:3, :] *= scale
+    return moved
+
+
 def model_files(reconstruction) -> dict[str, bytes]:
     """The COLMAP model (binary, as COLMAP writes it) as ``{"sparse/0/<file>": bytes}``."""
     with tempfile.TemporaryDirectory(prefix="stereogeo-model-") as folder:

@@ -267,7 +267,7 @@ def calibrate_frames(
     up, up_sigma_deg, segments_up = _with_vertical_segments(model, read, readings_up, conf, notes)
     baseline, scale_source, baseline_sigma = _baseline(readings, baseline_m)
     to_output = colmap.align_world(model, up, baseline / float(np.linalg.norm(model.T)))
-    cam_from_world = {i: pose @ np.linalg.inv(to_output) for i, pose in registered.items()}
+    cam_from_world = {i: colmap.cam_from_new_world(pose, to_output) for i, pose in registered.items()}
     attitudes = frame_attitudes(cam_from_world, np.array([0.0, 0.0, 1.0]), model.R)
     span = _rotation_span(cam_from_world)
     travel = _travel(cam_from_world) / baseline
