@@ -194,8 +194,9 @@ class CalibrationResult:
         calibration = replace(
             c, K_left=K_l, K_right=K_r, image_size_left=size_l, image_size_right=size_r,
             R=back @ c.R @ turn.rotation, T=back @ c.T, gravity_left=g_l, gravity_right=g_r, sigma_left=s_l,
-            sigma_right=s_r, extra_report={**c.extra_report, "rotate_deg": turn.degrees},
+            sigma_right=s_r,
         )  # fmt: skip
+        calibration = with_rotation_noted(calibration, turn.degrees)
 
         def fit(f: CameraFit) -> CameraFit:
             width, height = turn.size_back((f.width, f.height))
@@ -212,6 +213,13 @@ class CalibrationResult:
             )
         left, right = fit(self.left), fit(self.right)
         return replace(self, calibration=calibration, left=left, right=right, pose=pose, matches=matches)
+
+
+def with_rotation_noted(calibration: StereoCalibration, degrees: int) -> StereoCalibration:
+    """The calibration with the report's ``rotate_deg`` where its images were read turned (``--rotate``)."""
+    if not degrees:
+        return calibration
+    return replace(calibration, extra_report={**calibration.extra_report, "rotate_deg": int(degrees)})
 
 
 def _flat_futures(work) -> list:

@@ -31,7 +31,7 @@ from stereogeo_cli.batch.interrupt import Interrupted, Stop, interruptible, prot
 from stereogeo_cli.batch.resume import EVIDENCE, MARKER, evidence_bytes, existing_results, read_evidence
 from stereogeo_cli.errors import StereoGeoError
 from stereogeo_cli.fuse import Matches, fuse_relative_pose
-from stereogeo_cli.geometry import intrinsic_matrix, rotation_error, rotation_from_axis_angle
+from stereogeo_cli.geometry import intrinsic_matrix, rotation_angle, rotation_error, rotation_from_axis_angle
 
 
 def touch(folder: Path, *names: str) -> None:
@@ -273,6 +273,30 @@ def test_same_rig_writes_one_joint_calibration(small_images, onnx_model, tmp_pat
         assert {"left_roll_deg", "left_pitch_deg", "right_roll_deg", "right_pitch_deg"} <= set(p)
     assert rig["left"]["sigma"]["focal_px"] > 0
     assert json.loads((out / "summary.json").read_text())["rig"]["folder"] == "rig"
+
+
+def test_same_rig_of_a_rig_mounted_upside_down_with_rotate_180(small_images, onnx_model, tmp_path):
+    """The rig turned 180° (each camera sees the other's view turned, the files keep their cameras' names),
+    calibrated with --rotate 180: the joint calibration is the upright rig's, turned into each camera's frame
+    (the pooled fit works on the matches turned back)."""
+    upright = pair_folder(tmp_path / "up", small_images, ("a", "b"))
+    turned = pair_folder(tmp_path / "turned", [image[::-1, ::-1] for image in small_images[::-1]], ("a", "b"))
+    rigs = []
+    for folder, extra in ((upright, ()), (turned, ("--rotate", "180"))):
+        out = tmp_path / f"out_{folder.name}"
+        result = invoke("batch-calibrate", folder, "-o", out, "--model", onnx_model, "--same-rig", *extra)
+        assert result.exit_code == 0, result.output
+        rigs.append(json.loads((out / "rig" / "report.json").read_text()))
+    up, rig = rigs
+    assert rig["rotate_deg"] == 180 and "rotate_deg" not in up
+    assert rig["left"]["focal_px"] == pytest.approx(up["right"]["focal_px"], rel=0.01)
+    assert rig["right"]["focal_px"] == pytest.approx(up["left"]["focal_px"], rel=0.01)
+    flip = np.diag([-1.0, -1.0, 1.0])
+    R_up = np.array(up["R"])
+    assert np.degrees(rotation_angle(np.array(rig["R"]).T @ flip @ R_up.T @ flip)) < 0.1
+    for p_up, p in zip(up["pairs"], rig["pairs"], strict=True):
+        g = flip @ np.array(p_up["gravity_right"])
+        assert np.degrees(np.arccos(np.clip(g @ p["gravity_left"], -1, 1))) < 0.5
 
 
 def test_same_rig_needs_one_image_size(small_images, onnx_model, tmp_path):

@@ -131,7 +131,7 @@ def test_a_rig_mounted_upside_down_gets_its_gravity_with_rotate_180(tmp_path, tu
     report = json.loads(
         _stereogeo("calibrate-sequence", turned, "--json", "--no-progress", "--rotate", "180").stdout
     )
-    assert report["sequence"]["frames_registered"] == 16
+    assert report["sequence"]["frames_registered"] == 16 and report["rotate_deg"] == 180
     assert np.median(errors(report)) < min(3 * report["sequence"]["world"]["sigma_up_deg"], 2.5)
     assert report["left"]["focal_px"] == pytest.approx(upright["right"]["focal_px"], rel=0.015)
     T_upright = flip @ (-np.array(upright["R"]).T @ np.array(upright["T"]))

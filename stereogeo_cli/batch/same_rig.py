@@ -26,7 +26,7 @@ import numpy as np
 from stereogeo_cli.batch.discovery import PairEntry
 from stereogeo_cli.batch.run import PairJob, PairOutcome, RigEvidence, _Progress, _run_pass
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
-from stereogeo_cli.pipeline import calibrator_conf
+from stereogeo_cli.pipeline import calibrator_conf, with_rotation_noted
 
 POOL_THRESHOLD_PX = 2.0  # a match joins the same-rig pool if its Sampson error under its pair's pose is below
 FOCAL_REJECT_SIGMAS = 3.0  # same-rig: focal estimates this many sigmas from the weighted median are dropped
@@ -281,4 +281,5 @@ def same_rig_calibration(outcomes, job: PairJob, workers, calibrator, bar: _Prog
         focal_bias_sigma=tuple(bias if own else 0.0 for own in from_images),
         read_spread=tuple(calibrator().conf["read_spread"] if own else 0.0 for own in from_images),
     )  # fmt: skip
+    rig = with_rotation_noted(rig, job.rotate)
     return replace(rig, timing_ms={"total": (time.perf_counter() - start) * 1e3})  # the same-rig stage

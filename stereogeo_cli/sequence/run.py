@@ -33,6 +33,7 @@ from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.fuse.assemble import finite, focal_sigmas
 from stereogeo_cli.geometry import intrinsic_matrix, rotation_angle
 from stereogeo_cli.io import StereoCalibration
+from stereogeo_cli.pipeline import with_rotation_noted
 from stereogeo_cli.refine.lines import detect_segments
 from stereogeo_cli.sequence import colmap
 from stereogeo_cli.sequence.evidence import (
@@ -466,10 +467,13 @@ def calibrate_sequence(
         if progress is not None:
             progress(len(read.frames), len(read.frames), "COLMAP: matching, mapping, adjusting")
         model_file = (calibrator.model_path.name, calibrator.network.model_sha256)
-        return calibrate_frames(
+        result = calibrate_frames(
             read, folder, baseline_m=baseline_m, pinhole=pinhole, model_file=model_file,
             warnings=list(source.warnings), conf=conf, stop=stop,
         )  # fmt: skip
+        if result is not None:
+            result.calibration = with_rotation_noted(result.calibration, rotate)
+        return result
     except colmap.Cancelled:
         return None
     finally:
