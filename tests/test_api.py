@@ -76,6 +76,10 @@ def test_a_rig_mounted_upside_down_is_calibrated_with_rotate_180(example_pair, o
     for got, up in zip((plain.gravity_left, plain.gravity_right), truth_up, strict=True):
         assert np.degrees(gravity_angle(got, up)) > 170.0
 
+    # the same turned views named by where the cameras now sit: the right one left of the left (T_x > 0)
+    by_place = calibrator.calibrate(*turned[::-1]).calibration
+    assert any("swapped" in note and "--rotate 180" in note for note in by_place.notes.split("; "))
+
     rotated = calibrator.calibrate(*turned, rotate=180).calibration
     assert not rotated.notes
     assert rotated.K_left[0, 0] == pytest.approx(upright.K_right[0, 0], rel=1e-9)
