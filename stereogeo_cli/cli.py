@@ -332,6 +332,9 @@ def _print_summary(result, console) -> None:
                 f"{side} focal: given {source.focal_px:.0f} ± {source.sigma_px:.0f} px, with the fields' "
                 f"{source.fields_focal_px:.0f} px"
             )
+    if report.get("rotate_deg"):
+        turned = report["rotate_deg"]
+        console.print(f"images read turned {turned}° clockwise; the result is for them as given")
     pose = result.pose
     if pose.equal_focals:
         console.print("focal lengths held equal: the matches could not tell the two cameras apart")
