@@ -995,10 +995,7 @@ class Calibrator:
                 work.fits[side], work.priors[side] = self._with_manhattan(view, work.fits[side], reads[side])
         work.timing["manhattan"] += (time.perf_counter() - tick) * 1e3
         if any(prior is not None and prior.source == "lines" for prior in work.priors):
-            # from the first fusion's choices, but not on a turned rig: there the focal lengths' common
-            # scale is refined with the pose, a fit with more than one minimum that other focal lengths can
-            # send elsewhere (the car set's R 19.6° → 26.3° from the first one's start)
-            self._fuse_pose(work, again=None if work.pose.turned else work.pose.start)
+            self._fuse_pose(work, again=work.pose.start)
 
     def _fit_gravity(self, work: _PairWork) -> None:
         """Stage 6: the matches' focal refinement (their ratio always; more where the cameras rotate), each

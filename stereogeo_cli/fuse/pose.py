@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import cv2
@@ -46,12 +46,14 @@ default_conf = {
     "iterations": 15,  # Gauss–Newton/LM steps of the joint refinement
     "prior_rotation_sigma_deg": 5.0,  # 1-sigma of the pose head's rotation
     "prior_direction_sigma_deg": 15.0,  # 1-sigma of the pose head's translation direction
-    # A "turned" rig: the essential matrix of at least turned_rig_min_inliers inliers turns the cameras this
-    # many degrees or more apart, five times the renders' largest toe-in. There the two focal lengths' common
-    # scale is refined with the pose (where the caller gives its sigma), and the pose head is left out where
-    # it reads the rotation head_gate_sigmas of its sigmas away (docs/refine.md, "Turned rigs")
+    # A "turned" rig: the matches, fitted without the pose head, turn the cameras this many degrees or more
+    # apart (five times the renders' largest toe-in), and with the head they still do or fit it worse by
+    # turned_rig_min_gain (robust cost in noise² units: chi-square with the head's 3 dof, p 1e-3). There the
+    # two focal lengths' common scale is refined with the pose (where the caller gives its sigma), and the
+    # pose head is left out where it reads the rotation head_gate_sigmas of its sigmas away (_turned_rig;
+    # docs/refine.md, "Turned rigs")
     "turned_rig_deg": 20.0,
-    "turned_rig_min_inliers": 30,
+    "turned_rig_min_gain": 16.3,
     "head_gate_sigmas": 4.0,
     "sign_min_parallax_deg": 1.0,  # points whose rays meet at more than this decide the sign of t
     "sign_min_points": 10,  # fewer such points: the pose head's sign of t
@@ -87,7 +89,10 @@ class FusionStart:
     the two focal lengths held equal, its noise scale and its lens. The matches decided these, and they do
     not change; tested again on focal lengths a few percent apart, the choices came out the same on 34 of 37
     pairs of renders and real sets. The second fusion refines once from them instead of running the
-    essential matrix, every start and every test again (docs/refine.md, "Vanishing points")."""
+    essential matrix, every start and every test again (docs/refine.md, "Vanishing points"). On a turned
+    rig it runs them all again and keeps only the verdict on the rig (turned, the head left out): there the
+    common focal scale is refined with the pose, a fit with more than one minimum that other focal lengths
+    can send elsewhere (the car set's R 19.6° → 26.3° from the first one's start)."""
 
     R: np.ndarray
     t: np.ndarray
@@ -309,7 +314,7 @@ def fuse_relative_pose(
             likes the fitted k than none); the k itself is the matches'.
         again: the ``start`` of an earlier fusion of the same matches (with other K): one refinement from
             its pose, on its inliers, with its choices (:class:`FusionStart`), instead of the essential
-            matrix, the starts and the tests.
+            matrix, the starts and the tests; on a turned rig all of them, with its verdict on the rig.
     Returns:
         A :class:`RelativePose`. With enough matches: the essential-matrix pose refined on its inliers
         (robust Sampson error) with soft gravity coupling (R·g_left = g_right) and the pose head as a
@@ -319,6 +324,9 @@ def fuse_relative_pose(
     has_gravity = gravity_left is not None and gravity_right is not None and gravity_sigma_rad
     notes: list[str] = []
     found = len(matches)
+    verdict = None  # a turned rig's: the full fusion again, its verdict on the rig kept (FusionStart)
+    if again is not None and again.turned:
+        verdict, again = again, None
     if again is not None:
         initial = (again.R, again.t, again.mask)
     else:
@@ -341,23 +349,32 @@ def fuse_relative_pose(
     if prior_R is not None:  # the pose head's rotation made consistent with gravity
         R_p = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
     if again is None:
-        turned, head_out = _turned_rig(R0, mask0, R_p, conf, notes)
-    else:
-        turned, head_out = again.turned, again.head_out
-        notes.extend(again.notes)
-    common = None
-    if split is not None and all(v > 0 for v in var) and common_focal_sigma_rel and turned:
-        common = float(common_focal_sigma_rel)
-    head_R, head_t = (None, None) if head_out else (prior_R, prior_t)
-    priors = _Priors(
-        gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad, head_R, head_t,
-        np.radians(conf["prior_rotation_sigma_deg"]), np.radians(conf["prior_direction_sigma_deg"]),
-    )  # fmt: skip
-    if again is None:
         errors0 = sampson_errors(fundamental_matrix(K_left, K_right, R0, t0), matches.left, matches.right)
         noise = max(1.4826 * float(np.median(np.abs(errors0[mask0]))), conf["min_noise_px"])
     else:  # its scale of the match noise, which the essential matrix's errors gave
         noise = again.noise_px
+    sigmas = np.radians(conf["prior_rotation_sigma_deg"]), np.radians(conf["prior_direction_sigma_deg"])
+    with_head = _Priors(
+        gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad, prior_R, prior_t, *sigmas
+    )
+    without_head = replace(with_head, R=None, t=None)
+    common = None  # the common scale's sigma where it may be refined (on a turned rig)
+    if split is not None and all(v > 0 for v in var) and common_focal_sigma_rel:
+        common = float(common_focal_sigma_rel)
+    if verdict is not None:
+        turned, head_out = True, verdict.head_out
+        notes.extend(verdict.notes)
+    elif again is None:
+        joints = (
+            _Joint(matches, K_left, K_right, noise, without_head, common, prior_t, conf),
+            _Joint(matches, K_left, K_right, noise, with_head, None, prior_t, conf),
+        )
+        turned, head_out = _turned_rig(joints, R0, t0, mask0, R_p, split, conf, notes)
+    else:
+        turned, head_out = again.turned, again.head_out
+        notes.extend(again.notes)
+    common = common if turned else None
+    priors = without_head if head_out else with_head
     if again is not None and again.one_centre:
         return _one_centre(
             matches, K_left, K_right, noise, R0, priors, focal_sigma_rel, common_focal_sigma_rel, conf, found,
@@ -366,7 +383,7 @@ def fuse_relative_pose(
     joint = _Joint(matches, K_left, K_right, noise, priors, common, prior_t, conf)
     if again is None:
         best, used_split, k_bounds = _choose(
-            joint, R0, t0, mask0, R_p, head_R, head_t, split, distortion_evidence
+            joint, R0, t0, mask0, R_p, priors.R, priors.t, split, distortion_evidence
         )
     else:
         best, used_split, k_bounds = _fit_again(joint, again, R0, t0, mask0, split)
@@ -559,10 +576,8 @@ class _Joint:
         focal_terms = 0.0 if split is None else ((d - split.d0) / split.sigma) ** 2
         focal_terms += 0.0 if self.common is None else (c / self.common) ** 2
         k_terms = (k[0] ** 2 + k[1] ** 2) / conf["distortion_sigma"] ** 2
-        score = float(
-            np.sum(np.minimum((errors / noise) ** 2, 9.0)) + np.sum(self.priors.residuals(R, t) ** 2)
-            + focal_terms + k_terms
-        )  # fmt: skip
+        priors = float(np.sum(self.priors.residuals(R, t) ** 2))
+        score = _robust_cost(errors, noise) + priors + focal_terms + k_terms
         return _Fit(score, _State(R, t, d, c, k), scales, hessian, mask, errors)
 
 
@@ -692,31 +707,58 @@ def _pose_head_alone(found, inliers, prior_R, prior_t, gravity_left, gravity_rig
     )  # fmt: skip
 
 
-def _turned_rig(R0, mask0, head_R, conf, notes: list[str]) -> tuple[bool, bool]:
+def _turned_rig(joints, R0, t0, mask0, head_R, split, conf, notes: list[str]) -> tuple[bool, bool]:
     """Whether the rig is turned, and whether the pose head is left out (with a note in ``notes``).
 
-    A turned rig: its cameras turn tens of degrees apart (the essential matrix ``R0``'s rotation, on enough
-    inliers ``mask0``). The two focal lengths' common scale shows in its matches (a rotation maps one
-    camera's rays onto the other's pixels through both), and is refined with the pose there; on a
-    near-parallel rig the epipolar geometry does not depend on it, and a free scale drifts with the noise
-    and the priors. The pose head learnt rigs whose cameras turn a few degrees at most, and its sigmas hold
-    there; on a turned rig that it reads (``head_R``, made consistent with gravity) far from the matches,
-    its prior would pull the pose (and the focal lengths with it) towards a rig it knows: it is left out.
+    A turned rig: its cameras turn tens of degrees apart. The two focal lengths' common scale shows in its
+    matches (a rotation maps one camera's rays onto the other's pixels through both), and is refined with
+    the pose there; on a near-parallel rig the epipolar geometry does not depend on it, and a free scale
+    drifts with the noise and the priors. The pose head learnt rigs whose cameras turn a few degrees at
+    most, and its sigmas hold there; on a turned rig that it reads (``head_R``, made consistent with
+    gravity) far from the matches, its prior would pull the pose (and the focal lengths with it) towards a
+    rig it knows: it is left out.
+
+    The matches decide, each fitted twice: without the pose head (``joints[0]``: gravity and the common
+    scale) from the essential matrix (R0, t0), and with it (``joints[1]``) from its best start. The rig is
+    turned where the first fit turns the cameras ``turned_rig_deg`` apart and the head cannot bring them
+    back: the second fit turns them as far, or the matches fit it worse by ``turned_rig_min_gain`` (their
+    robust cost in noise² units; a rig the head reads right fits as well near it). So a few inliers in the
+    narrow strip two turned cameras share can reject the head, and an essential matrix turned by a wrong
+    focal length or a near-degenerate scene cannot.
     """
-    turned = (
-        float(np.degrees(rotation_angle(R0))) >= conf["turned_rig_deg"]
-        and mask0.sum() >= conf["turned_rig_min_inliers"]
+    if float(np.degrees(rotation_angle(R0))) < conf["turned_rig_deg"]:
+        return False, False
+    alone, kept = joints
+    free = alone.fit(_State(R0, t0, 0.0, 0.0, (0.0, 0.0)), mask0, None, split)
+    if float(np.degrees(rotation_angle(free.state.R))) < conf["turned_rig_deg"]:
+        return False, False
+    if head_R is None:
+        return True, False
+    prior_t = kept.priors.t
+    starts = [(R0, t0)] if prior_t is None else _starts(R0, t0, head_R, prior_t)
+    held = min(
+        (kept.fit(_State(R, t, 0.0, 0.0, (0.0, 0.0)), mask0, None, split) for R, t in starts),
+        key=lambda candidate: candidate.score,
     )
-    if head_R is None or not turned:
-        return turned, False
+    gain = _robust_cost(held.errors, kept.noise) - _robust_cost(free.errors, alone.noise)
+    if (
+        float(np.degrees(rotation_angle(held.state.R))) < conf["turned_rig_deg"]
+        and gain < conf["turned_rig_min_gain"]
+    ):
+        return False, False
     apart = float(np.degrees(rotation_error(head_R, R0)))
     if apart <= conf["head_gate_sigmas"] * conf["prior_rotation_sigma_deg"]:
-        return turned, False
+        return True, False
     notes.append(
         f"the pose head's rotation is {apart:.0f}° from the matches' (a rig unlike those it learnt): "
         "pose from the matches and gravity"
     )
-    return turned, True
+    return True, True
+
+
+def _robust_cost(errors: np.ndarray, noise: float) -> float:
+    """The matches' robust cost: squared Sampson errors in noise units, each capped at 9 (3 noise)."""
+    return float(np.sum(np.minimum((errors / noise) ** 2, 9.0)))
 
 
 def _lens_evidence(k, distortion_evidence) -> float:
