@@ -165,7 +165,9 @@ class CalibrationResult:
             pose, R=pose.R.T, t_direction=-pose.R.T @ pose.t_direction, focal_scale=pose.focal_scale[::-1],
             distortion=pose.distortion[::-1], sigma_distortion=pose.sigma_distortion[::-1], start=None,
         )  # fmt: skip
-        matches = None if self.matches is None else Matches(self.matches.right, self.matches.left)
+        matches = None
+        if self.matches is not None:
+            matches = Matches(self.matches.right, self.matches.left, self.matches.features[::-1])
         return replace(
             self, calibration=calibration, left=self.right, right=self.left, pose=mirrored_pose,
             matches=matches, focal_sources=self.focal_sources[::-1],
@@ -210,6 +212,7 @@ class CalibrationResult:
             matches = Matches(
                 turn.points_back(self.matches.left, turn.size_back(sizes[0])),
                 turn.points_back(self.matches.right, turn.size_back(sizes[1])),
+                self.matches.features,
             )
         left, right = fit(self.left), fit(self.right)
         return replace(self, calibration=calibration, left=left, right=right, pose=pose, matches=matches)

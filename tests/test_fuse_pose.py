@@ -108,6 +108,38 @@ def test_too_few_matches_falls_back_to_the_pose_head_pulled_towards_gravity():
         fuse_relative_pose(Matches(np.zeros((3, 2)), np.zeros((3, 2))), K, K)
 
 
+def test_textured_views_that_match_too_little_get_the_sigma_of_a_guess():
+    """Too few matches between two images that each hold thousands of features: the cameras see different
+    parts of the scene, a rig unlike the near-parallel ones the pose head learnt. Its R is reported with the
+    cameras' mean horizontal field of view as its sigma, and a note says why; two images with few features
+    (a blank wall) keep the head's own sigma."""
+    rng = np.random.default_rng(7)
+    K_left, K_right = intrinsic_matrix(500, 640, 480), intrinsic_matrix(400, 640, 480)
+    R, T = _rig(rng)
+    few = _matches(rng, K_left, K_right, R, T, count=8)
+    fovs = [np.degrees(2 * np.arctan(320 / f)) for f in (500, 400)]  # 65.2° and 77.3°
+    apart = fuse_relative_pose(
+        replace(few, features=(2600, 3100)),
+        K_left,
+        K_right,
+        prior_R=R,
+        prior_t=T,
+        conf={"prior_rotation_sigma_deg": 2.4},
+    )
+    assert apart.source == "pose_head"
+    assert apart.sigma_rotation_deg == pytest.approx(np.mean(fovs))
+    assert any("share almost nothing (8 of 2600 features match)" in note for note in apart.notes)
+    blank = fuse_relative_pose(
+        replace(few, features=(120, 90)),
+        K_left,
+        K_right,
+        prior_R=R,
+        prior_t=T,
+        conf={"prior_rotation_sigma_deg": 2.4},
+    )
+    assert blank.sigma_rotation_deg == 2.4 and len(blank.notes) == 1
+
+
 def test_focal_ratio_is_refined_with_the_pose():
     """A 10 % error in one focal length: the matches recover the ratio, the rotation stays sub-degree."""
     rng = np.random.default_rng(43)
@@ -674,6 +706,28 @@ def test_a_car_rigs_cameras_that_share_few_matches_are_taken_for_turned(shared_d
     assert np.degrees(rotation_error(result.pose.R, np.array(record["R"]))) < 10.0
 
 
+def test_a_car_rigs_cameras_that_share_no_view_get_an_r_sigma_that_holds_the_error(shared_data):
+    """A car's back and back-left cameras, 71° apart, share 19 matches and no inlier among 2,597 features
+    per image: the pose head's near-parallel R is reported as a guess, with a sigma (the mean horizontal
+    field of view) that holds its error, and a warning (with the head's own sigma, the error was 28 of it)."""
+    import json
+
+    from stereogeo_cli.io.images import load_image
+    from stereogeo_cli.pipeline import Calibrator
+
+    folder = shared_data / "real-dev" / "driving"
+    name = "nus_back_backleft"
+    records = map(json.loads, (folder / "calib.jsonl").read_text().splitlines())
+    record = next(r for r in records if r["id"] == name)
+    images = [load_image(folder / side / f"{name}.png") for side in ("left", "right")]
+    result = Calibrator(threads=1).calibrate(*images)
+    report = result.report()
+    error = np.degrees(rotation_error(result.pose.R, np.array(record["R"])))
+    assert result.pose.source == "pose_head" and error > 45.0
+    assert error < report["pose"]["sigma_rotation_deg"] < 90.0
+    assert any("share almost nothing" in warning for warning in result.warnings)
+
+
 def test_mutual_ratio_matches_are_opencvs_brute_force_ratio_test_with_a_cross_check():
     """The matcher is Lowe's ratio test on the two nearest neighbours (L2) plus a mutual check: the same
     index pairs as OpenCV's brute-force matcher (k=2 one way, 1-NN the other), here on descriptors with
@@ -697,3 +751,18 @@ def test_mutual_ratio_matches_are_opencvs_brute_force_ratio_test_with_a_cross_ch
     found = [tuple(pair) for pair in mutual_ratio_matches(a, b, 0.75).tolist()]
     ratio_only = len(mutual_ratio_matches(a, b, 0.75, mutual=False))
     assert 200 < len(expected) < ratio_only < 500 and found == expected
+
+
+def test_matches_carry_how_many_features_each_image_had_even_when_none_match():
+    """What the fusion tells textured views that share nothing from blank ones by."""
+    from stereogeo_cli.fuse.matches import Features, match_detected
+
+    rng = np.random.default_rng(5)
+    a, b = (rng.integers(0, 120, size=(n, 128)).astype(np.float32) for n in (300, 200))
+    xy_a, xy_b = rng.uniform(0, 600, (300, 2)), rng.uniform(0, 600, (200, 2))
+    same = match_detected(Features(xy_a, a), Features(xy_a, a))
+    assert len(same) == 300 and same.features == (300, 300)
+    apart = match_detected(Features(xy_a, a), Features(xy_b, b))
+    assert len(apart) < 10 and apart.features == (300, 200)
+    none = match_detected(Features(xy_a, a), Features(np.zeros((0, 2)), None))
+    assert len(none) == 0 and none.features == (300, 0)

@@ -17,10 +17,13 @@ default_conf = {
 
 @dataclass
 class Matches:
-    """Matched pixel coordinates [N x 2] in each original (not shrunk) image, OpenCV pixel centres."""
+    """Matched pixel coordinates [N x 2] in each original (not shrunk) image, OpenCV pixel centres, and how
+    many features each image had to match (0: not counted): textured images that match few of them see
+    different parts of the scene."""
 
     left: np.ndarray
     right: np.ndarray
+    features: tuple[int, int] = (0, 0)
 
     def __len__(self) -> int:
         return len(self.left)
@@ -89,13 +92,14 @@ def detect_features(image: np.ndarray, conf: dict | None = None) -> Features:
 def match_detected(left: Features, right: Features, conf: dict | None = None) -> Matches:
     """The matches between two images' features (:func:`mutual_ratio_matches` on their descriptors)."""
     conf = {**default_conf, **(conf or {})}
-    empty = Matches(np.zeros((0, 2)), np.zeros((0, 2)))
+    features = (len(left.xy), len(right.xy))
+    empty = Matches(np.zeros((0, 2)), np.zeros((0, 2)), features)
     if left.descriptors is None or right.descriptors is None or len(left.xy) < 2 or len(right.xy) < 2:
         return empty
     idx = mutual_ratio_matches(left.descriptors, right.descriptors, conf["ratio"], conf["mutual"])
     if len(idx) == 0:
         return empty
-    return Matches(left.xy[idx[:, 0]], right.xy[idx[:, 1]])
+    return Matches(left.xy[idx[:, 0]], right.xy[idx[:, 1]], features)
 
 
 def match_features(left: np.ndarray, right: np.ndarray, conf: dict | None = None) -> Matches:

@@ -36,6 +36,10 @@ from stereogeo_cli.refine.levenberg import Settings, levenberg_marquardt
 default_conf = {
     "min_matches": 20,  # fewer matches than this: the pose head and gravity alone
     "min_inliers": 15,  # fewer essential-matrix inliers than this: the pose head and gravity alone
+    # ... and where each image has at least this many features, the two views share (almost) nothing: the
+    # cameras look apart, unlike the near-parallel rigs the pose head learnt, and its R is reported with the
+    # sigma of a guess, the cameras' mean horizontal field of view (_pose_head_alone)
+    "unshared_min_features": 500,
     "ransac_threshold_px": 1.0,  # MAGSAC threshold on the epipolar error, pixels
     "ransac_confidence": 0.9999,
     # where MAGSAC's essential matrix misses its own inliers, ask RANSAC too (essential_pose); off: OpenCV's
@@ -335,8 +339,8 @@ def fuse_relative_pose(
     if initial is None or (again is None and initial[2].sum() < conf["min_inliers"]):
         inliers = 0 if initial is None else int(initial[2].sum())
         return _pose_head_alone(
-            found, inliers, prior_R, prior_t, gravity_left if has_gravity else None, gravity_right,
-            gravity_sigma_rad, conf,
+            matches, inliers, prior_R, prior_t, gravity_left if has_gravity else None, gravity_right,
+            gravity_sigma_rad, conf, (K_left, K_right),
         )  # fmt: skip
 
     R0, t0, mask0 = initial
@@ -685,12 +689,30 @@ def _with_common_scale_as_read(cov: np.ndarray, i: int, sigma: float) -> float:
     return float(np.sqrt(variance))
 
 
-def _pose_head_alone(found, inliers, prior_R, prior_t, gravity_left, gravity_right, gravity_sigma_rad, conf):
+def _pose_head_alone(
+    matches, inliers, prior_R, prior_t, gravity_left, gravity_right, gravity_sigma_rad, conf, Ks
+) -> RelativePose:
     """Too few matches for the relative pose: the pose head's, rotated by the least amount that makes it
-    agree with gravity (``gravity_left`` None: no gravity)."""
+    agree with gravity (``gravity_left`` None: no gravity).
+
+    Where both images are textured (``unshared_min_features``) and still match too little, the two cameras
+    see different parts of the scene: a rig whose cameras look apart (a car's surround cameras), unlike the
+    near-parallel rigs the pose head learnt, whose R it reads tens of degrees off (a car's back and back-left
+    cameras, 71° apart: 71° off). Its sigma then is the cameras' mean horizontal field of view (``Ks``, the
+    principal points at the image centres), about how far apart two cameras that share no view must look."""
     if prior_R is None or prior_t is None:
         raise ValueError("too few matches for the relative pose and no pose-head prior to fall back on")
+    found = len(matches)
     notes = [f"too few matches ({found} found, {inliers} inliers): pose from the pose head and gravity"]
+    sigma_rotation = float(conf["prior_rotation_sigma_deg"])
+    if min(matches.features) >= conf["unshared_min_features"]:
+        fov = np.mean([np.degrees(2.0 * np.arctan(K[0, 2] / K[0, 0])) for K in Ks])
+        sigma_rotation = max(sigma_rotation, float(fov))
+        notes.append(
+            f"the two views share almost nothing ({found} of {min(matches.features)} features match): the "
+            f"cameras look apart, unlike the rigs the pose head learnt, and its R is a guess "
+            f"(± {sigma_rotation:.0f}°)"
+        )
     has_gravity = gravity_left is not None
     R = (
         _pull_towards_gravity(prior_R, gravity_left, gravity_right, gravity_sigma_rad, conf)
@@ -700,7 +722,7 @@ def _pose_head_alone(found, inliers, prior_R, prior_t, gravity_left, gravity_rig
     t = np.asarray(prior_t, dtype=float)
     return RelativePose(
         R=R, t_direction=t / np.linalg.norm(t), source="pose_head", matches_found=found, inliers=inliers,
-        sigma_rotation_deg=float(conf["prior_rotation_sigma_deg"]),
+        sigma_rotation_deg=sigma_rotation,
         sigma_direction_deg=float(conf["prior_direction_sigma_deg"]),
         gravity_error_deg=_gravity_error_deg(R, gravity_left, gravity_right) if has_gravity else None,
         notes=notes,
