@@ -118,25 +118,17 @@ def test_textured_views_that_match_too_little_get_the_sigma_of_a_guess():
     R, T = _rig(rng)
     few = _matches(rng, K_left, K_right, R, T, count=8)
     fovs = [np.degrees(2 * np.arctan(320 / f)) for f in (500, 400)]  # 65.2° and 77.3°
-    apart = fuse_relative_pose(
-        replace(few, features=(2600, 3100)),
-        K_left,
-        K_right,
-        prior_R=R,
-        prior_t=T,
-        conf={"prior_rotation_sigma_deg": 2.4},
-    )
+
+    def fused(features):
+        conf = {"prior_rotation_sigma_deg": 2.4}
+        return fuse_relative_pose(
+            replace(few, features=features), K_left, K_right, prior_R=R, prior_t=T, conf=conf
+        )
+
+    apart, blank = fused((2600, 3100)), fused((120, 90))
     assert apart.source == "pose_head"
     assert apart.sigma_rotation_deg == pytest.approx(np.mean(fovs))
     assert any("share almost nothing (8 of 2600 features match)" in note for note in apart.notes)
-    blank = fuse_relative_pose(
-        replace(few, features=(120, 90)),
-        K_left,
-        K_right,
-        prior_R=R,
-        prior_t=T,
-        conf={"prior_rotation_sigma_deg": 2.4},
-    )
     assert blank.sigma_rotation_deg == 2.4 and len(blank.notes) == 1
 
 
