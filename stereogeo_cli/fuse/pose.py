@@ -710,7 +710,7 @@ def _pose_head_alone(
         sigma_rotation = max(sigma_rotation, float(fov))
         notes.append(
             f"the two views share almost nothing ({found} of {min(matches.features)} features match): the "
-            f"cameras look apart, unlike the rigs the pose head learnt, and its R is a guess "
+            f"cameras may look apart, unlike the rigs the pose head learnt, and its R is a guess "
             f"(± {sigma_rotation:.0f}°)"
         )
     has_gravity = gravity_left is not None
