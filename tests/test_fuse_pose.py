@@ -655,20 +655,25 @@ def test_a_few_matches_in_the_strip_two_turned_cameras_share_reject_the_pose_hea
     assert np.median(errors) < 1.5, np.round(errors, 2)
 
 
+def _driving_pair(shared_data, name):
+    """A pair of the car-mounted set: its ground-truth record and its two images."""
+    import json
+
+    from stereogeo_cli.io.images import load_image
+
+    folder = shared_data / "real-dev" / "driving"
+    records = map(json.loads, (folder / "calib.jsonl").read_text().splitlines())
+    record = next(r for r in records if r["id"] == name)
+    return record, [load_image(folder / side / f"{name}.png") for side in ("left", "right")]
+
+
 def test_a_car_rigs_turned_cameras_are_told_to_give_known_focal_lengths(shared_data):
     """Two cameras of a car's surround rig, turned about 53° apart, with focal lengths read from the images:
     R and T move with them, and the warning says so; given the true focal lengths, R is within a few
     degrees and there is no such warning."""
-    import json
-
-    from stereogeo_cli.io.images import load_image
     from stereogeo_cli.pipeline import Calibrator
 
-    folder = shared_data / "real-dev" / "driving"
-    name = "dgp_s02f0_cam08_cam09"
-    records = map(json.loads, (folder / "calib.jsonl").read_text().splitlines())
-    record = next(r for r in records if r["id"] == name)
-    images = [load_image(folder / side / f"{name}.png") for side in ("left", "right")]
+    record, images = _driving_pair(shared_data, "dgp_s02f0_cam08_cam09")
     calibrator = Calibrator(threads=1)
     read = calibrator.calibrate(*images)
     assert read.pose.turned and any("turn" in note and "--focal-left" in note for note in read.warnings)
@@ -684,15 +689,9 @@ def test_a_car_rigs_cameras_that_share_few_matches_are_taken_for_turned(shared_d
     """Two cameras of a car's surround rig turned 55° apart, whose 17–37 essential-matrix inliers lie in the
     narrow strip both see: the rig is taken for turned and R comes from the matches, within 10° (with the
     pose head's prior of a parallel rig kept, R was 48–50° off)."""
-    import json
-
-    from stereogeo_cli.io.images import load_image
     from stereogeo_cli.pipeline import Calibrator
 
-    folder = shared_data / "real-dev" / "driving"
-    records = map(json.loads, (folder / "calib.jsonl").read_text().splitlines())
-    record = next(r for r in records if r["id"] == name)
-    images = [load_image(folder / side / f"{name}.png") for side in ("left", "right")]
+    record, images = _driving_pair(shared_data, name)
     result = Calibrator(threads=1).calibrate(*images)
     assert result.pose.source == "matches" and result.pose.turned
     assert np.degrees(rotation_error(result.pose.R, np.array(record["R"]))) < 10.0
@@ -702,16 +701,9 @@ def test_a_car_rigs_cameras_that_share_no_view_get_an_r_sigma_that_holds_the_err
     """A car's back and back-left cameras, 71° apart, share 19 matches and no inlier among 2,597 features
     per image: the pose head's near-parallel R is reported as a guess, with a sigma (the mean horizontal
     field of view) that holds its error, and a warning (with the head's own sigma, the error was 28 of it)."""
-    import json
-
-    from stereogeo_cli.io.images import load_image
     from stereogeo_cli.pipeline import Calibrator
 
-    folder = shared_data / "real-dev" / "driving"
-    name = "nus_back_backleft"
-    records = map(json.loads, (folder / "calib.jsonl").read_text().splitlines())
-    record = next(r for r in records if r["id"] == name)
-    images = [load_image(folder / side / f"{name}.png") for side in ("left", "right")]
+    record, images = _driving_pair(shared_data, "nus_back_backleft")
     result = Calibrator(threads=1).calibrate(*images)
     report = result.report()
     error = np.degrees(rotation_error(result.pose.R, np.array(record["R"])))

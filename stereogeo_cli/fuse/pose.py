@@ -16,7 +16,7 @@ import numpy as np
 
 from stereogeo_cli.fuse.matches import Matches
 from stereogeo_cli.fuse.one_centre import essential_gric, fit_rotation
-from stereogeo_cli.geometry.camera import corner_radius, division_limit, undistort_division
+from stereogeo_cli.geometry.camera import corner_radius, division_limit, undistort_division, vfov_from_focal
 from stereogeo_cli.geometry.epipolar import essential_matrix, fundamental_matrix
 from stereogeo_cli.geometry.gravity import (
     couple_rotation_to_gravity,
@@ -706,7 +706,7 @@ def _pose_head_alone(
     notes = [f"too few matches ({found} found, {inliers} inliers): pose from the pose head and gravity"]
     sigma_rotation = float(conf["prior_rotation_sigma_deg"])
     if min(matches.features) >= conf["unshared_min_features"]:
-        fov = np.mean([np.degrees(2.0 * np.arctan(K[0, 2] / K[0, 0])) for K in Ks])
+        fov = np.degrees(np.mean([vfov_from_focal(K[0, 0], 2.0 * K[0, 2]) for K in Ks]))  # horizontal
         sigma_rotation = max(sigma_rotation, float(fov))
         notes.append(
             f"the two views share almost nothing ({found} of {min(matches.features)} features match): the "
