@@ -43,8 +43,11 @@ def test_api_takes_arrays_and_rejects_bad_input(example_pair, onnx_model):
 def test_swapped_pair_gives_the_mirrored_rig(example_pair, onnx_model):
     calibrator = stereogeo_cli.Calibrator(onnx_model, threads=1)
     images = [stereogeo_cli.load_image(p) for p in example_pair]
-    direct = calibrator.calibrate(*images).calibration
-    swapped = calibrator.calibrate(*images[::-1]).calibration
+    direct_result, swapped_result = calibrator.calibrate(*images), calibrator.calibrate(*images[::-1])
+    direct, swapped = direct_result.calibration, swapped_result.calibration
+    # a near scene: points in front of both cameras tell which way T points, and so the swap
+    assert direct_result.report()["pose"]["sign_source"] == "matches"
+    assert swapped_result.report()["pose"]["sign_source"] == "matches"
     # each camera's focal length within 1 %
     assert swapped.K_right[0, 0] == pytest.approx(direct.K_left[0, 0], rel=0.01)
     assert swapped.K_left[0, 0] == pytest.approx(direct.K_right[0, 0], rel=0.01)

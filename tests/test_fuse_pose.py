@@ -268,8 +268,10 @@ def test_the_sign_of_t_comes_from_parallax_and_from_the_pose_head_in_a_far_scene
     for prior_sign in (1.0, -1.0):
         pose = fuse_relative_pose(near, K, K, prior_R=R, prior_t=prior_sign * T)
         assert pose.t_direction @ T > 0.99 * np.linalg.norm(T)  # parallax wins over a wrong head
+        assert pose.sign_source == "matches"
         pose = fuse_relative_pose(far, K, K, prior_R=R, prior_t=prior_sign * T)
         assert np.sign(pose.t_direction @ T) == prior_sign  # no parallax: the head's sign
+        assert pose.sign_source == "pose_head"
 
 
 def test_the_joint_refinement_jacobian_is_the_derivative_of_its_residuals():
@@ -577,6 +579,35 @@ def test_a_fusion_again_with_other_focal_lengths_from_the_first_ones_choices_is_
     assert np.sum(np.abs(again - full).max(axis=1) < 0.02) >= 8, errors
     assert np.median(again[:, 0]) < 1.1 * np.median(full[:, 0]) + 0.005, errors
     assert np.median(again[:, 1]) < 1.1 * np.median(full[:, 1]) + 0.05, errors
+
+
+def test_a_focal_length_read_far_off_does_not_put_the_right_camera_on_the_left():
+    """On a short rig before a far scene the turn across the baseline and the parallax trade against each
+    other, and the matches read that turn through the focal lengths: a focal length 1.6× off (vanishing
+    points of a wrong frame, on one camera or both) turned R far enough to put every point behind the
+    cameras, and t came out reversed. Points decide the sign of t only where their parallax exceeds what the
+    rotation's uncertainty, the focal lengths' included, could close; else the pose head's sign stands."""
+    K = intrinsic_matrix(500, 640, 480)
+    # the pipeline's sigmas of a focal length read from the images: the fields', and with the camera bias
+    kw = {"focal_sigma_rel": (0.1, 0.1), "common_focal_sigma_rel": float(np.hypot(0.1, 0.25))}
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        R, T = _rig(rng)
+        T = T / np.linalg.norm(T) * 0.2
+        X = np.column_stack([rng.uniform(-1, 1, 300), rng.uniform(-0.75, 0.75, 300), np.ones(300)])
+        X *= rng.uniform(4.0, 40.0, 300)[:, None]
+        xl, xr = X @ K.T, (X @ R.T + T) @ K.T
+        noise = rng.normal(0, 0.5, (2, 300, 2))
+        m = Matches(xl[:, :2] / xl[:, 2:] + noise[0], xr[:, :2] / xr[:, 2:] + noise[1])
+        first = fuse_relative_pose(m, K, K, prior_R=R, prior_t=T, **kw)
+        assert first.t_direction @ T > 0
+        K_off = intrinsic_matrix(500 * 1.6, 640, 480)
+        for K_left, K_right in ((K_off, K), (K_off, K_off)):
+            pose = fuse_relative_pose(m, K_left, K_right, prior_R=R, prior_t=T, **kw)
+            assert pose.t_direction @ T > 0, seed
+            # the pipeline's second fusion, from the first one's choices
+            again = fuse_relative_pose(m, K_left, K_right, prior_R=R, prior_t=T, **kw, again=first.start)
+            assert again.t_direction @ T > 0, seed
 
 
 def test_the_reported_rotation_sigma_takes_in_the_focal_lengths_in_proportion_to_the_turn():

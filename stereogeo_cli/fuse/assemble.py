@@ -83,6 +83,9 @@ def pose_report(pose: RelativePose, cameras: tuple[CameraEstimate, CameraEstimat
         # the fusion's, with the focal lengths' uncertainty (rotation_sigma_deg)
         "sigma_rotation_deg": finite(rotation_sigma_deg(pose, cameras)),
         "sigma_direction_deg": finite(pose.sigma_direction_deg),
+        # what decided which way T points: "matches" (points in front of both cameras, with parallax) or
+        # "pose_head" (a far scene: the head's sign, which takes the files' names as given)
+        "sign_source": pose.sign_source,
         "gravity_error_deg": pose.gravity_error_deg,
         "rotation_deg": float(np.degrees(rotation_angle(pose.R))),
         # the two focal lengths held equal: the matches could not tell their ratio from 1 (or, with too few

@@ -59,8 +59,14 @@ default_conf = {
     "turned_rig_deg": 20.0,
     "turned_rig_min_gain": 16.3,
     "head_gate_sigmas": 4.0,
-    "sign_min_parallax_deg": 1.0,  # points whose rays meet at more than this decide the sign of t
-    "sign_min_points": 10,  # fewer such points: the pose head's sign of t
+    # The sign of t: a point votes (in front of both cameras or behind) where its two rays meet at more than
+    # sign_min_parallax_deg and than sign_rotation_sigmas of the rotation's largest 1-sigma, the two focal
+    # lengths' common scale taken in; the votes decide where at least sign_min_points cast them and at least
+    # sign_min_share of them agree, else the pose head's sign (_Joint.signed; docs/refine.md, "The sign of T")
+    "sign_min_parallax_deg": 1.0,
+    "sign_rotation_sigmas": 2.0,
+    "sign_min_points": 10,
+    "sign_min_share": 0.8,
     "distortion": True,  # fit one radial (division-model) distortion parameter per camera to the matches
     "distortion_sigma": 0.2,  # 1-sigma of the zero-mean prior on it (normalised coordinates)
     "distortion_max_pincushion": 0.0,  # largest pincushion stretch k·r² at the image corner (0: barrel only)
@@ -142,6 +148,9 @@ class RelativePose:
     # normalised coordinates of the refined K, and its 1-sigma (0 and inf: not fitted)
     distortion: tuple[float, float] = (0.0, 0.0)
     sigma_distortion: tuple[float, float] = (float("inf"), float("inf"))
+    # where the sign of t came from: "matches" (points in front of both cameras, with parallax) or "pose_head"
+    # (a far scene: the head learnt rigs whose right camera is on the right, as the file names say)
+    sign_source: str = "pose_head"
     notes: list[str] = field(default_factory=list)
     # what a fusion of the same matches with other focal lengths starts from (None: from the pose head)
     start: FusionStart | None = None
@@ -349,6 +358,9 @@ def fuse_relative_pose(
     # is refined only on a turned rig: _turned_rig).
     var = [0.0 if (v is None or not np.isfinite(v) or v <= 0) else float(v) ** 2 for v in focal_sigma_rel]
     split = None if sum(var) <= 0 else _Split(var[0] / sum(var), var[1] / sum(var), float(np.sqrt(sum(var))))
+    # how far the common scale of two free focal lengths, held in the fit, can be off: the images' read with
+    # the camera bias where given (the sign of t takes it in: _Joint.signed)
+    scale_sigma = 0.0 if min(var) <= 0 else common_focal_sigma_rel or float(np.mean(np.sqrt(var)))
     R_p = None
     if prior_R is not None:  # the pose head's rotation made consistent with gravity
         R_p = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
@@ -370,8 +382,8 @@ def fuse_relative_pose(
         notes.extend(verdict.notes)
     elif again is None:
         joints = (
-            _Joint(matches, K_left, K_right, noise, without_head, common, prior_t, conf),
-            _Joint(matches, K_left, K_right, noise, with_head, None, prior_t, conf),
+            _Joint(matches, K_left, K_right, noise, without_head, common, prior_t, conf, scale_sigma),
+            _Joint(matches, K_left, K_right, noise, with_head, None, prior_t, conf, scale_sigma),
         )
         turned, head_out = _turned_rig(joints, R0, t0, mask0, R_p, split, conf, notes)
     else:
@@ -384,7 +396,7 @@ def fuse_relative_pose(
             matches, K_left, K_right, noise, R0, priors, focal_sigma_rel, common_focal_sigma_rel, conf, found,
             has_gravity, head_out,
         )  # fmt: skip
-    joint = _Joint(matches, K_left, K_right, noise, priors, common, prior_t, conf)
+    joint = _Joint(matches, K_left, K_right, noise, priors, common, prior_t, conf, scale_sigma)
     if again is None:
         best, used_split, k_bounds = _choose(
             joint, R0, t0, mask0, R_p, priors.R, priors.t, split, distortion_evidence
@@ -528,7 +540,8 @@ def _starts(R0, t0, R_p, t_p) -> list[tuple[np.ndarray, np.ndarray]]:
 @dataclass
 class _Joint:
     """The joint refinement's fixed inputs: the matches, the given K, the match noise (pixels), the priors,
-    the common focal scale's sigma (None: not refined) and the pose head's t (its sign of t)."""
+    the common focal scale's sigma (None: not refined), the pose head's t (its sign of t) and the relative
+    1-sigma of the two focal lengths' common scale where it is held (0: known)."""
 
     matches: Matches
     K_left: np.ndarray
@@ -538,6 +551,39 @@ class _Joint:
     common: float | None
     prior_t: np.ndarray | None
     conf: dict
+    focal_sigma: float = 0.0
+
+    def signed(self, state: _State, hessian, mask, split, k_bounds, left, right, K_left, K_right):
+        """The fit's t [3] with its sign, and what decided it ("matches" or "pose_head"): the epipolar error
+        cannot tell t from -t, the points must lie in front of both cameras (``left``, ``right``: the
+        inliers, undistorted, seen through ``K_left``, ``K_right``).
+
+        A point says so only where its two rays meet at an angle that no rotation within the fit's
+        uncertainty could close: on a short rig before a far scene, the turn across the baseline and the
+        parallax trade against each other, and the matches read that turn through the focal lengths, so its
+        uncertainty takes in their common scale (``focal_sigma``; a focal length read 1.6× off turned a 20 cm
+        rig's R far enough to put every point behind). Points that disagree say nothing either. Where the
+        points do not decide (a far scene), the pose head's sign is taken: the head learnt rigs whose right
+        camera is on the right, as the file names say."""
+        conf = self.conf
+        sigma = self._rotation_sigma(state, hessian, mask, split, k_bounds)
+        min_parallax = max(np.radians(conf["sign_min_parallax_deg"]), conf["sign_rotation_sigmas"] * sigma)
+        share, count = _in_front_share(state.R, state.t, left, right, K_left, K_right, min_parallax)
+        decided = count >= conf["sign_min_points"] and abs(share - 0.5) >= conf["sign_min_share"] - 0.5
+        if not decided and self.prior_t is not None:
+            return (state.t if state.t @ self.prior_t >= 0 else -state.t), "pose_head"
+        return (state.t if share >= 0.5 else -state.t), "matches"
+
+    def _rotation_sigma(self, state: _State, hessian, mask, split, k_bounds) -> float:
+        """The rotation's largest 1-sigma (radians) at a fit: its Hessian's, and where the two focal lengths'
+        common scale is held, what its uncertainty adds (0 where the Hessian is singular)."""
+        try:
+            cov = np.linalg.inv(hessian())
+        except np.linalg.LinAlgError:
+            return 0.0
+        if self.common is None and self.focal_sigma > 0:
+            cov = cov + _consider_covariance(self, state, mask, split, k_bounds, {"focal": self.focal_sigma})
+        return float(np.sqrt(max(float(np.linalg.eigvalsh(cov[:3, :3]).max()), 0.0)))
 
     def refine(self, state: _State, mask, split, k_bounds):
         """:func:`_refine_pose` on the matches of ``mask``."""
@@ -568,21 +614,13 @@ class _Joint:
             right = undistort_division(matches.right, self.K_right, k[1])
             errors = sampson_errors(fundamental_matrix(K_l, K_r, R, t), left, right)
             mask = np.abs(errors) < max(3.0 * noise, conf["ransac_threshold_px"])
-        # The epipolar error cannot tell t from -t: the points must lie in front of the cameras. Only points
-        # with parallax can say so; with too few of them (a far scene), the pose head's sign is taken.
-        share, count = _in_front_share(
-            R, t, left[mask], right[mask], K_l, K_r, np.radians(conf["sign_min_parallax_deg"])
-        )
-        if count < conf["sign_min_points"] and self.prior_t is not None:
-            t = t if t @ self.prior_t >= 0 else -t
-        elif share < 0.5:
-            t = -t
+        t, sign_source = self.signed(state, hessian, mask, split, k_bounds, left[mask], right[mask], K_l, K_r)
         focal_terms = 0.0 if split is None else ((d - split.d0) / split.sigma) ** 2
         focal_terms += 0.0 if self.common is None else (c / self.common) ** 2
         k_terms = (k[0] ** 2 + k[1] ** 2) / conf["distortion_sigma"] ** 2
         priors = float(np.sum(self.priors.residuals(R, t) ** 2))
         score = _robust_cost(errors, noise) + priors + focal_terms + k_terms
-        return _Fit(score, _State(R, t, d, c, k), scales, hessian, mask, errors)
+        return _Fit(score, _State(R, t, d, c, k), scales, hessian, mask, errors, sign_source)
 
 
 def _distortion_bounds(K_left, K_right, conf) -> tuple | None:
@@ -657,7 +695,7 @@ def _pose_from_fit(joint: _Joint, best: _Fit, split, k_bounds, focal_sigma_rel) 
     }
     if k_bounds is not None:
         considered["principal_point"] = joint.conf["principal_point_sigma"]
-    cov = cov + _consider_covariance(joint, best, split, k_bounds, considered)
+    cov = cov + _consider_covariance(joint, best.state, best.mask, split, k_bounds, considered)
     distortion, sigma_distortion = (0.0, 0.0), (float("inf"), float("inf"))
     if k_bounds is not None:
         # k in the refined K's normalised coordinates: r' = r·f/f', so k' = k·(f'/f)²
@@ -665,7 +703,7 @@ def _pose_from_fit(joint: _Joint, best: _Fit, split, k_bounds, focal_sigma_rel) 
         distortion = (float(k[0] * grow[0]), float(k[1] * grow[1]))
         sigma_distortion = (float(np.sqrt(cov[-2, -2]) * grow[0]), float(np.sqrt(cov[-1, -1]) * grow[1]))
     return RelativePose(
-        R=R, t_direction=t, source="matches", inliers=int(best.mask.sum()),
+        R=R, t_direction=t, source="matches", inliers=int(best.mask.sum()), sign_source=best.sign_source,
         sigma_rotation_deg=float(np.degrees(np.sqrt(np.trace(cov[:3, :3])))),
         sigma_direction_deg=float(np.degrees(np.sqrt(np.trace(cov[3:5, 3:5])))),
         focal_scale=(float(np.exp(scales[0])), float(np.exp(scales[1]))),
@@ -793,9 +831,10 @@ def _lens_evidence(k, distortion_evidence) -> float:
     return float(evidence)
 
 
-def _consider_covariance(joint: _Joint, best: _Fit, split, k_bounds, sigmas: dict) -> np.ndarray:
+def _consider_covariance(joint: _Joint, state: _State, mask, split, k_bounds, sigmas: dict) -> np.ndarray:
     """The covariance the pose inherits from parameters held at a guess (a "consider" covariance):
-    S·Σc·Sᵀ with S = −H⁻¹·JᵀW·J_c the estimate's sensitivity to them at the solution.
+    S·Σc·Sᵀ with S = −H⁻¹·JᵀW·J_c the estimate's sensitivity to them at the solution ``state`` (fitted on
+    the matches of ``mask``).
 
     ``sigmas``: ``focal`` (1-sigma of the log of both focal lengths together) and, if present,
     ``principal_point`` (1-sigma of each camera's principal point along each axis, as a share of the image's
@@ -804,9 +843,8 @@ def _consider_covariance(joint: _Joint, best: _Fit, split, k_bounds, sigmas: dic
     K_left, K_right = joint.K_left, joint.K_right
 
     def problem(K_l, K_r):
-        return joint.problem(best.mask, split, k_bounds, K_l, K_r)
+        return joint.problem(mask, split, k_bounds, K_l, K_r)
 
-    state = best.state
     base = problem(K_left, K_right)
     r, J = base.jacobian(state)
     w = base.weights(r)
@@ -873,6 +911,7 @@ class _Fit:
     hessian: Callable[[], np.ndarray]  # the whole Gauss–Newton Hessian there (computed when called)
     mask: np.ndarray
     errors: np.ndarray  # every match's Sampson error there, pixels
+    sign_source: str = "pose_head"  # what decided the sign of t (_Joint.signed)
 
 
 def _in_front_share(R, t, left, right, K_left, K_right, min_parallax_rad: float = 0.0) -> tuple[float, int]:
