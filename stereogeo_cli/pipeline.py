@@ -612,6 +612,7 @@ class Calibrator:
                 None if edge_lens[0] is None else edge_lens[0].division_k(fit_left.focal_px),
                 None if edge_lens[1] is None else edge_lens[1].division_k(fit_right.focal_px),
             ),
+            lens_seen=tuple(not _no_lens(lens, self.conf["manhattan"]["lens_sigmas"]) for lens in edge_lens),
             again=again,
         )  # fmt: skip
         if pose.source == "pose_head" and held == [None, None]:

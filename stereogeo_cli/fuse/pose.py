@@ -302,6 +302,7 @@ def fuse_relative_pose(
     focal_sigma_rel: tuple[float | None, float | None] = (None, None),
     common_focal_sigma_rel: float | None = None,
     distortion_evidence: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
+    lens_seen: tuple[bool, bool] = (False, False),
     conf: dict | None = None,
     again: FusionStart | None = None,
 ) -> RelativePose:
@@ -325,6 +326,8 @@ def fuse_relative_pose(
             of its K read from other evidence (the image's straight edges, ``refine/plumb.py``), or None.
             It weighs in the test of whether a lens is fitted at all (a chi-square of how much better it
             likes the fitted k than none); the k itself is the matches'.
+        lens_seen: per camera, whether that evidence shows a lens beyond doubt: a raw camera, whose principal
+            point widens the pose's sigmas as where a lens is fitted, even where the matches fit none.
         again: the ``start`` of an earlier fusion of the same matches (with other K): one refinement from
             its pose, on its inliers, with its choices (:class:`FusionStart`), instead of the essential
             matrix, the starts and the tests; on a turned rig all of them, with its verdict on the rig.
@@ -403,7 +406,8 @@ def fuse_relative_pose(
         )
     else:
         best, used_split, k_bounds = _fit_again(joint, again, R0, t0, mask0, split)
-    pose = _pose_from_fit(joint, best, used_split, k_bounds, focal_sigma_rel)
+    raw = k_bounds is not None or any(lens_seen)
+    pose = _pose_from_fit(joint, best, used_split, k_bounds, focal_sigma_rel, raw)
     if again is None and conf["one_centre"]:
         # the rotation and the refined essential matrix compared at the noise of the more general model, the
         # refined essential matrix's (the raw one's can be far too wide), and not at the fusion's floor: a far
@@ -678,12 +682,12 @@ def _equal_split(split: _Split, K_left, K_right) -> tuple[_Split, float]:
     return split._replace(sigma=1e-6, d0=d_equal), d_equal
 
 
-def _pose_from_fit(joint: _Joint, best: _Fit, split, k_bounds, focal_sigma_rel) -> RelativePose:
+def _pose_from_fit(joint: _Joint, best: _Fit, split, k_bounds, focal_sigma_rel, raw: bool) -> RelativePose:
     """The pose of the chosen fit with its covariance: the Hessian's, plus what the matches cannot see,
     which widens the pose's covariance without moving it: the two cameras' common focal scale (the fields'
     sigma; held focal lengths have none; a common scale that was refined is in the Hessian already) and, for
-    a raw camera (a lens fitted: ``k_bounds``), the principal points, which the camera model puts at the
-    image centres."""
+    ``raw`` cameras (a lens fitted, ``k_bounds``, or seen in the images' straight edges), the principal
+    points, which the camera model puts at the image centres."""
     (R, t, _, _, k), scales = best.state, best.scales
     cov = np.linalg.inv(best.hessian())
     sigma_common = None
@@ -693,7 +697,7 @@ def _pose_from_fit(joint: _Joint, best: _Fit, split, k_bounds, focal_sigma_rel) 
     considered = {
         "focal": 0.0 if any(known) or joint.common else 0.5 * float(focal_sigma_rel[0] + focal_sigma_rel[1])
     }
-    if k_bounds is not None:
+    if raw:
         considered["principal_point"] = joint.conf["principal_point_sigma"]
     cov = cov + _consider_covariance(joint, best.state, best.mask, split, k_bounds, considered)
     distortion, sigma_distortion = (0.0, 0.0), (float("inf"), float("inf"))

@@ -58,7 +58,8 @@ default_conf = {
     "stability_scale": 0.75,
     # not used where the image's edges read a lens (refine/plumb.py) more than this many sigmas from none:
     # the raw chessboard rig's views read 5.0–7.1, Middlebury's pinhole views at most 3.3 (pipeline;
-    # docs/refine.md, "Vanishing points", "Where it is not used, and why")
+    # docs/refine.md, "Vanishing points", "Where it is not used, and why"); such a camera is raw, and its
+    # principal point widens the pose's sigmas even where the matches fit no lens (fuse_relative_pose)
     "lens_sigmas": 4.0,
 }
 
