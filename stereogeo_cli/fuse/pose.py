@@ -64,7 +64,7 @@ default_conf = {
     # lengths' common scale taken in; the votes decide where at least sign_min_points cast them and at least
     # sign_min_share of them agree, else the pose head's sign (_Joint.signed; docs/refine.md, "The sign of T")
     "sign_min_parallax_deg": 1.0,
-    "sign_rotation_sigmas": 2.0,
+    "sign_rotation_sigmas": 3.0,
     "sign_min_points": 10,
     "sign_min_share": 0.8,
     "distortion": True,  # fit one radial (division-model) distortion parameter per camera to the matches
