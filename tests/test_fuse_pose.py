@@ -274,6 +274,24 @@ def test_the_sign_of_t_comes_from_parallax_and_from_the_pose_head_in_a_far_scene
         assert pose.sign_source == "pose_head"
 
 
+def test_a_fit_whose_hessian_tells_nothing_leaves_the_sign_of_t_to_the_pose_head():
+    """A singular or non-finite Hessian (a fit gone astray) gives no rotation sigma: no point can vote, the
+    pose head's sign stands, and nothing raises."""
+    from stereogeo_cli.fuse.pose import _Joint, _State, default_conf
+
+    rng = np.random.default_rng(47)
+    K = intrinsic_matrix(500, 640, 480)
+    R, T = _rig(rng)
+    m = _matches(rng, K, K, R, T, outliers=0.0)
+    head = -T / np.linalg.norm(T)  # the head reads the other sign
+    joint = _Joint(m, K, K, 0.5, None, None, head, default_conf)
+    state = _State(R, T / np.linalg.norm(T), 0.0, 0.0, (0.0, 0.0))
+    mask = np.ones(len(m), bool)
+    for hessian in (np.zeros((5, 5)), np.full((5, 5), np.nan)):
+        t, source = joint.signed(state, lambda h=hessian: h, mask, None, None, m.left, m.right, K, K)
+        assert source == "pose_head" and t @ head > 0
+
+
 def test_the_joint_refinement_jacobian_is_the_derivative_of_its_residuals():
     """The analytic Jacobian (Sampson errors through F, gravity, rotation and direction priors, focal
     ratio, common focal scale) and the k columns equal central differences of the residuals along the LM's

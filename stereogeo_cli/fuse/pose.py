@@ -580,14 +580,18 @@ class _Joint:
 
     def _rotation_sigma(self, state: _State, hessian, mask, split, k_bounds) -> float:
         """The rotation's largest 1-sigma (radians) at a fit: its Hessian's, and where the two focal lengths'
-        common scale is held, what its uncertainty adds (0 where the Hessian is singular)."""
+        common scale is held, what its uncertainty adds (infinite where the Hessian tells nothing: singular,
+        or not finite at a fit gone astray)."""
         try:
             cov = np.linalg.inv(hessian())
+            if self.common is None and self.focal_sigma > 0:
+                focal = {"focal": self.focal_sigma}
+                cov = cov + _consider_covariance(self, state, mask, split, k_bounds, focal)
+            if not np.all(np.isfinite(cov[:3, :3])):
+                return float("inf")
+            return float(np.sqrt(max(float(np.linalg.eigvalsh(cov[:3, :3]).max()), 0.0)))
         except np.linalg.LinAlgError:
-            return 0.0
-        if self.common is None and self.focal_sigma > 0:
-            cov = cov + _consider_covariance(self, state, mask, split, k_bounds, {"focal": self.focal_sigma})
-        return float(np.sqrt(max(float(np.linalg.eigvalsh(cov[:3, :3]).max()), 0.0)))
+            return float("inf")
 
     def refine(self, state: _State, mask, split, k_bounds):
         """:func:`_refine_pose` on the matches of ``mask``."""
