@@ -446,7 +446,9 @@ def test_identical_cameras_are_held_to_one_focal_length():
         T = np.array([-0.3, 0.02, 0.1])
         m = _matches(rng, K, K, R, T, noise_px=0.7, outliers=0.1)
         K_l, K_r = intrinsic_matrix(500 * 1.03, 640, 480), intrinsic_matrix(500 / 1.03, 640, 480)
-        kw = {"prior_R": R, "prior_t": T, "focal_sigma_rel": (0.1, 0.1)}
+        # the pose head reads T's direction a few degrees off, as it does (an exact one would win as is)
+        head_t = rotation_from_axis_angle(np.radians([0.0, 4.0, 0.0])) @ T
+        kw = {"prior_R": R, "prior_t": head_t, "focal_sigma_rel": (0.1, 0.1)}
         a = fuse_relative_pose(m, K_l, K_r, **kw)
         b = fuse_relative_pose(m, K_l, K_r, **kw, conf={"equal_focal_max_gain": 0.0})
         assert a.equal_focals and not b.equal_focals
@@ -836,3 +838,37 @@ def test_matches_carry_how_many_features_each_image_had_even_when_none_match():
     assert len(apart) < 10 and apart.features == (300, 200)
     none = match_detected(Features(xy_a, a), Features(np.zeros((0, 2)), None))
     assert len(none) == 0 and none.features == (300, 0)
+
+
+def _far_street_fusion():
+    """The fusion's inputs on a rendered street pair (tests/fixtures/far_street_fusion.json)."""
+    import json
+    from pathlib import Path
+
+    saved = json.loads((Path(__file__).parent / "fixtures" / "far_street_fusion.json").read_text())
+    matches = Matches(np.array(saved["left"]), np.array(saved["right"]), tuple(saved["features"]))
+    inputs = {
+        name: np.array(saved[name])
+        for name in ("K_left", "K_right", "gravity_left", "gravity_right", "prior_R", "prior_t")
+    }
+    inputs.update(
+        gravity_sigma_rad=saved["gravity_sigma_rad"],
+        focal_sigma_rel=tuple(saved["focal_sigma_rel"]),
+        common_focal_sigma_rel=saved["common_focal_sigma_rel"],
+    )
+    conf = {name: saved[name] for name in ("prior_rotation_sigma_deg", "prior_direction_sigma_deg")}
+    T = np.array(saved["true_T"])
+    return matches, inputs, conf, T / np.linalg.norm(T)
+
+
+def test_in_a_far_scene_the_pose_heads_direction_held_is_a_candidate_the_score_can_choose():
+    """A 10 cm rig before a far street: from both starts the refinement slid 80° away along the valley the
+    matches leave T's direction in, against the head's prior, and the fit's score had nothing else to
+    choose. R fitted with T's direction held at the head's is a candidate, and the score takes it."""
+    matches, inputs, conf, T = _far_street_fusion()
+    K_left, K_right = inputs.pop("K_left"), inputs.pop("K_right")
+    slid = fuse_relative_pose(matches, K_left, K_right, **inputs, conf={**conf, "head_direction_held": False})
+    assert _direction_error_deg(slid.t_direction, T) > 60  # what the candidate is for
+    pose = fuse_relative_pose(matches, K_left, K_right, **inputs, conf=conf)
+    error = _direction_error_deg(pose.t_direction, T)
+    assert pose.source == "matches" and error < 10 and error < 3 * pose.sigma_direction_deg, error

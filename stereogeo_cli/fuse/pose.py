@@ -59,6 +59,9 @@ default_conf = {
     "turned_rig_deg": 20.0,
     "turned_rig_min_gain": 16.3,
     "head_gate_sigmas": 4.0,
+    # also fit R with T's direction held at the pose head's: in a far scene the matches leave the direction
+    # in a shallow valley, and their score, not the refinement's slide, chooses (_head_direction_held)
+    "head_direction_held": True,
     # The sign of t: a point votes (in front of both cameras or behind) where its two rays meet at more than
     # sign_min_parallax_deg and than sign_rotation_sigmas of the rotation's largest 1-sigma, the two focal
     # lengths' common scale taken in; the votes decide where at least sign_min_points cast them and at least
@@ -502,7 +505,9 @@ def _choose(joint: _Joint, R0, t0, mask0, R_p, head_R, head_t, split, distortion
     two focal lengths are held equal. Returns the chosen fit, its split and its k bounds (None: no lens)."""
     starts = [(R0, t0)] if head_R is None or head_t is None else _starts(R0, t0, R_p, head_t)
     fits = [joint.fit(_State(R, t, 0.0, 0.0, (0.0, 0.0)), mask0, None, split) for R, t in starts]
-    best = min(fits, key=lambda candidate: candidate.score)
+    if head_R is not None and head_t is not None and joint.conf["head_direction_held"]:
+        fits.append(_head_direction_held(joint, R_p, head_t, mask0, split))
+    best = min((f for f in fits if f is not None), key=lambda candidate: candidate.score)
     k_bounds = _distortion_bounds(joint.K_left, joint.K_right, joint.conf)
     radial = k_bounds is not None and _lens_shows(joint, best, split, k_bounds, distortion_evidence)
     if radial:
@@ -528,6 +533,24 @@ def _fit_again(joint: _Joint, again: FusionStart, R0, t0, mask0, split):
         )
     best = joint.fit(_State(R0, t0, d, 0.0, k), mask0, k_bounds, used_split, keep_k=True)
     return best, used_split, k_bounds
+
+
+def _head_direction_held(joint: _Joint, R_p, t_p, mask0, split) -> _Fit | None:
+    """A candidate fit with T's direction held at the pose head's (its prior made a constraint) and R
+    refined from the head's, made consistent with gravity (``R_p``); None where it goes astray.
+
+    On a short rig before a far scene the matches leave T's direction in a long, shallow valley: released
+    from the head's direction, the refinement slides down the Huber cost to wherever the matches' small
+    systematic errors lead it (a street 70° from the truth), while their capped robust cost, the fits'
+    score, likes the head's direction as well or better. Its covariance is the free problem's at the held
+    solution (the constraint is not knowledge)."""
+    t_p = np.asarray(t_p, dtype=float) / np.linalg.norm(t_p)
+    held = replace(joint, priors=replace(joint.priors, t=t_p, direction_sigma=1e-5))
+    fit = held.fit(_State(R_p, t_p, 0.0, 0.0, (0.0, 0.0)), mask0, None, split)
+    if not np.isfinite(fit.score):
+        return None
+    state, mask = fit.state, fit.mask
+    return replace(fit, hessian=lambda: joint.problem(mask, split, None).hessian(state))
 
 
 def _starts(R0, t0, R_p, t_p) -> list[tuple[np.ndarray, np.ndarray]]:
