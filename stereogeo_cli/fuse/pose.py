@@ -541,16 +541,16 @@ def _head_direction_held(joint: _Joint, R_p, t_p, mask0, split) -> _Fit | None:
 
     On a short rig before a far scene the matches leave T's direction in a long, shallow valley: released
     from the head's direction, the refinement slides down the Huber cost to wherever the matches' small
-    systematic errors lead it (a street 70° from the truth), while their capped robust cost, the fits'
-    score, likes the head's direction as well or better. Its covariance is the free problem's at the held
+    systematic errors lead it (a rendered street: 80° from the truth), while their capped robust cost, the
+    fits' score, likes the head's direction better. Its covariance is the free problem's at the held
     solution (the constraint is not knowledge)."""
     t_p = np.asarray(t_p, dtype=float) / np.linalg.norm(t_p)
     held = replace(joint, priors=replace(joint.priors, t=t_p, direction_sigma=1e-5))
     fit = held.fit(_State(R_p, t_p, 0.0, 0.0, (0.0, 0.0)), mask0, None, split)
-    if not np.isfinite(fit.score):
+    hessian = joint.problem(fit.mask, split, None).hessian(fit.state)
+    if not (np.isfinite(fit.score) and np.all(np.isfinite(hessian))):
         return None
-    state, mask = fit.state, fit.mask
-    return replace(fit, hessian=lambda: joint.problem(mask, split, None).hessian(state))
+    return replace(fit, hessian=lambda: hessian)
 
 
 def _starts(R0, t0, R_p, t_p) -> list[tuple[np.ndarray, np.ndarray]]:
