@@ -6,6 +6,7 @@ Convention (fixed): ``X_right = R @ X_left + T``, T in metres.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -506,8 +507,9 @@ def _choose(joint: _Joint, R0, t0, mask0, R_p, head_R, head_t, split, distortion
     starts = [(R0, t0)] if head_R is None or head_t is None else _starts(R0, t0, R_p, head_t)
     fits = [joint.fit(_State(R, t, 0.0, 0.0, (0.0, 0.0)), mask0, None, split) for R, t in starts]
     if head_R is not None and head_t is not None and joint.conf["head_direction_held"]:
-        fits.append(_head_direction_held(joint, R_p, head_t, mask0, split))
-    best = min((f for f in fits if f is not None), key=lambda candidate: candidate.score)
+        held = _head_direction_held(joint, R_p, head_t, mask0, split)
+        fits += [] if held is None else [held]
+    best = min(fits, key=lambda candidate: candidate.score)
     k_bounds = _distortion_bounds(joint.K_left, joint.K_right, joint.conf)
     radial = k_bounds is not None and _lens_shows(joint, best, split, k_bounds, distortion_evidence)
     if radial:
@@ -1179,9 +1181,9 @@ def _refine_pose(
     ``common``: the 1-sigma of the prior 0 on c, which scales both focal lengths by exp(c) (None: c held at
     the state's). ``state.k`` undistorts the matches in the normalised coordinates of the given K_left,
     K_right; ``k_bounds`` their (lower, upper) limits. Returns the refined state, its whole Gauss–Newton
-    Hessian (a function: most fits' is never needed), the two log focal scales and the reweighted cost
-    Σ w·r² with the Huber weights there (in units of the noise and the sigmas; the nested tests of the lens
-    and of equal focal lengths compare it).
+    Hessian (a function, computed once when first called: the sign of t and the chosen fit's covariance
+    need it), the two log focal scales and the reweighted cost Σ w·r² with the Huber weights there (in
+    units of the noise and the sigmas; the nested tests of the lens and of equal focal lengths compare it).
     """
     problem = _PoseProblem(left, right, K_left, K_right, noise_px, priors, split, k_bounds, conf, common)
     settings = Settings(
@@ -1191,4 +1193,5 @@ def _refine_pose(
     fit = levenberg_marquardt(state, problem.cost, problem.normal_equations, problem.moved, settings)
     r = problem.residuals(fit.x)
     scales = problem.log_scales(fit.x.d, fit.x.c)
-    return fit.x, lambda: problem.hessian(fit.x), scales, float(np.sum(problem.weights(r) * r * r))
+    hessian = functools.cache(lambda: problem.hessian(fit.x))
+    return fit.x, hessian, scales, float(np.sum(problem.weights(r) * r * r))
