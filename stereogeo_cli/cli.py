@@ -217,6 +217,7 @@ def make_data(
     --sequence one sequence of a moving rig (K, R, T and the pose of every frame)."""
     require_training_extra("make-data")
     if photos is not None:
+        from stereogeo_cli.io.text import plural
         from stereogeo_cli.synth.photos import make_photo_pairs
 
         if out is None:
@@ -224,7 +225,7 @@ def make_data(
         if photo_split not in ("train", "all"):
             raise StereoGeoError(f"--photo-split must be train or all, not {photo_split!r}")
         written = make_photo_pairs(photos, out, None if photo_split == "all" else photo_split)
-        typer.echo(f"wrote {written} pairs to {out}")
+        typer.echo(f"wrote {plural(written, 'pair')} to {out}")
         return
     from stereogeo_cli.synth.cli_support import run_make_data
 
@@ -357,8 +358,9 @@ def _print_summary(result, console) -> None:
     gravity = f"vertical segments {segments[0]} / {segments[1]}" if any(segments) else "no vertical segments"
     console.print(f"matches: {report['matches']['found']} found, {report['matches']['inliers']} inliers; "
                   f"{gravity}; time {report['timing_ms']['total']:.0f} ms")  # fmt: skip
+    warnings_console = _stderr_console()  # diagnostics go where a pipe of the summary does not take them
     for warning in report["warnings"]:
-        console.print(f"[yellow]warning:[/yellow] {warning}")
+        warnings_console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
 
 
 PinholeFlag = Annotated[
@@ -597,6 +599,7 @@ def batch_calibrate(
     _check_rotate(rotate)
     from stereogeo_cli.batch import parse_shard, run_batch
     from stereogeo_cli.batch.interrupt import interruptible
+    from stereogeo_cli.io.text import plural
 
     names, shard_spec = _formats(formats), parse_shard(shard) if shard is not None else None
     _check_output_folder(output)
@@ -614,7 +617,7 @@ def batch_calibrate(
         sys.stdout.write(summary.json_text)
     else:
         typer.echo(
-            f"{total} pairs: {ok} ok, {summary.failed} failed{f', {left} not run' if left else ''}"
+            f"{plural(total, 'pair')}: {ok} ok, {summary.failed} failed{f', {left} not run' if left else ''}"
             f"{f' ({summary.resumed} kept from before)' if summary.resumed else ''}; results in {output}"
         )
         if summary.rig is not None:
@@ -625,10 +628,11 @@ def batch_calibrate(
                 f"baseline {rig['baseline_m']:.4f} m"
             )
     if summary.interrupted is not None:
-        rest = f"calibrate the other {left} pairs" if left else "make the joint calibration (--same-rig)"
+        other = f"the other {plural(left, 'pair')}"
+        rest = f"calibrate {other}" if left else "make the joint calibration (--same-rig)"
         typer.echo(
-            f"interrupted by {summary.interrupted}: {total - left} of {total} pairs done; summaries written "
-            f"to {output}; to {rest}, run the same command again with --resume",
+            f"interrupted by {summary.interrupted}: {total - left} of {plural(total, 'pair')} done; "
+            f"summaries written to {output}; to {rest}, run the same command again with --resume",
             err=True,
         )
         raise typer.Exit(code=stop.exit_code or EXIT_INTERRUPTED)
@@ -697,6 +701,14 @@ def calibrate_sequence(
             "(trajectory.txt and sparse/ are always written).",
         ),
     ] = "opencv,ros,kalibr,colmap,json",
+    overwrite: Annotated[
+        bool,
+        typer.Option(
+            "--overwrite",
+            help="Replace an output folder that holds an earlier run's results, in one step (else it is "
+            "refused).",
+        ),
+    ] = False,
     json_out: Annotated[
         bool, typer.Option("--json", help="Print the JSON report on stdout, and nothing else there.")
     ] = False,
@@ -705,6 +717,13 @@ def calibrate_sequence(
     ] = None,
     pinhole: PinholeFlag = False,
     rotate: RotateOption = 0,
+    stamp_tolerance: Annotated[
+        float | None,
+        typer.Option(
+            help="Bags: the largest difference in seconds between a left and a right image's stamps that "
+            "still pairs them (default 0.01; free-running cameras need more)."
+        ),
+    ] = None,
     workspace: Annotated[
         Path | None,
         typer.Option(help="Keep COLMAP's images and database in this folder (default: a temporary one)."),
@@ -714,44 +733,40 @@ def calibrate_sequence(
     ] = None,
     threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core but one).")] = 0,
     progress: Annotated[
-        bool | None,
-        typer.Option("--progress/--no-progress", help="Show a progress bar (default: if a terminal)."),
-    ] = None,
+        bool,
+        typer.Option(
+            "--progress/--no-progress",
+            help="Show each stage on stderr: a live line on a terminal, else a log line as each ends.",
+        ),
+    ] = True,
 ) -> None:
     """Calibrate a stereo rig from a sequence of its frame pairs (a drive, a robot's run, a hand-held
-    sweep): COLMAP's bundle adjustment over the frames fixes the focal lengths where the rig turns."""
-    _check_calibrate_options(baseline, None, None, None, threads)
-    _check_rotate(rotate)
-    for name, value in (("--every", every), ("--max-frames", max_frames)):
-        if value is not None and value < 1:
-            raise typer.BadParameter(f"must be at least 1, got {value}", param_hint=name)
-    if fps is not None and not (math.isfinite(fps) and fps > 0):
-        raise typer.BadParameter(f"must be a positive number, got {fps}", param_hint="--fps")
-    names = _formats(formats)
-    if output is not None:
-        _check_output_folder(output)
-    from stereogeo_cli.batch.interrupt import interruptible
-    from stereogeo_cli.pipeline import Calibrator, calibrator_conf
-    from stereogeo_cli.sequence.run import calibrate_sequence as run_sequence
-    from stereogeo_cli.sequence.run import write_sequence
-    from stereogeo_cli.sequence.sources import open_source
+    sweep): COLMAP's bundle adjustment over the frames fixes the focal lengths where the rig turns.
 
-    frames = open_source(
-        source, video=video, sbs=sbs, left_topic=left_topic, right_topic=right_topic, every=every, fps=fps,
-        max_frames=max_frames,
-    )  # fmt: skip
-    show = sys.stderr.isatty() if progress is None else progress
+    SIGINT or SIGTERM stops the run after the stage in flight: nothing is written (exit code 130, or 143)."""
+    from stereogeo_cli.batch.interrupt import Interrupted, interruptible
+
+    # the handlers are in place from the start, so that a signal at any moment ends the run the same way
     notice = "{name}: stopping after the stage in flight, nothing is written; {name} again to stop at once"
-    with interruptible(notice=notice) as stop, _sequence_progress(show, frames.description) as bar:
-        calibrator = Calibrator(model, threads=threads, conf=calibrator_conf(pinhole))
-        result = run_sequence(
-            frames, calibrator, baseline_m=baseline, pinhole=pinhole, workspace=workspace,
-            progress=bar, stop=stop, rotate=rotate,
-        )  # fmt: skip
+    stage = _StageProgress("off" if not progress else "bar" if sys.stderr.isatty() else "log")
+    with interruptible(notice=notice if sys.stderr.isatty() else None) as stop:
+        try:
+            with stage:
+                written, result = _run_sequence(
+                    stop, stage, source, output=output, video=video, sbs=sbs, left_topic=left_topic,
+                    right_topic=right_topic, every=every, fps=fps, max_frames=max_frames, formats=formats,
+                    overwrite=overwrite, baseline=baseline, pinhole=pinhole, rotate=rotate,
+                    stamp_tolerance=stamp_tolerance, workspace=workspace, model=model, threads=threads,
+                )  # fmt: skip
+                if stop.requested:
+                    stage.stopped()
+        except Interrupted:  # a second signal: the stage in flight was cut, what it made removed
+            written, result = [], None
     if stop.requested:
-        typer.echo(f"error: interrupted by {stop.name}: nothing was written", err=True)
+        where = f"the results were written to {output}" if written else "nothing was written"
+        typer.echo(f"error: interrupted by {stop.name}: {where}", err=True)
+        _ignore_signals_from_now()
         raise typer.Exit(code=stop.exit_code or EXIT_INTERRUPTED)
-    written = write_sequence(output, result, names) if output is not None else []
     if json_out:
         from stereogeo_cli.io.report import report_json
 
@@ -759,40 +774,142 @@ def calibrate_sequence(
         return
     from rich.console import Console
 
-    console = Console()
-    _print_sequence_summary(result.report(), console)
-    _print_written(console, written)
+    _print_sequence_summary(result.report(), Console(), _stderr_console())
+    _print_written(Console(), written)
 
 
-class _sequence_progress:
-    """A progress bar over the frames on stderr (a no-op callable where it is off)."""
+def _ignore_signals_from_now() -> None:
+    """A stopped run has said how it ended: further SIGINTs and SIGTERMs are ignored until the process
+    exits (Python's shutdown restores the default action of a signal it handled, which would kill the
+    process with no word and no exit code)."""
+    import signal
 
-    def __init__(self, show: bool, description: str):
-        self.show, self.description = show, description
-        self._progress = self._task = None
+    from stereogeo_cli.batch.interrupt import SIGNALS
+
+    for s in SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
+
+
+def _run_sequence(stop, stage, source, *, output, video, sbs, left_topic, right_topic, every, fps, max_frames,
+                  formats, overwrite, baseline, pinhole, rotate, stamp_tolerance, workspace, model,
+                  threads) -> tuple[list[Path], object]:  # fmt: skip
+    """``calibrate-sequence``'s work: the options checked, the source opened, the rig calibrated and its
+    files written; ([], None) where ``stop`` came first."""
+    _check_calibrate_options(baseline, None, None, None, threads)
+    _check_rotate(rotate)
+    for name, value in (("--every", every), ("--max-frames", max_frames)):
+        if value is not None and value < 1:
+            raise StereoGeoError(f"{name} must be at least 1, got {value}")
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise StereoGeoError(f"--fps must be a positive number of frames per second, got {fps}")
+    if workspace is not None and workspace.exists() and not workspace.is_dir():
+        raise StereoGeoError(f"--workspace {workspace} is a file, not a folder")
+    names = _formats(formats)
+    from stereogeo_cli.sequence.run import check_output_folder, write_sequence
+
+    if output is not None:
+        _check_output_folder(output)
+        check_output_folder(output, overwrite)
+    from stereogeo_cli.pipeline import Calibrator, calibrator_conf
+    from stereogeo_cli.sequence.run import calibrate_sequence as run_sequence
+    from stereogeo_cli.sequence.sources import open_source
+
+    stage(0, None, "opening the source")
+    frames = open_source(
+        source, video=video, sbs=sbs, left_topic=left_topic, right_topic=right_topic, every=every, fps=fps,
+        max_frames=max_frames, tolerance_s=stamp_tolerance,
+    )  # fmt: skip
+    if stop.requested:
+        return [], None
+    stage(0, None, "loading the network")
+    calibrator = Calibrator(model, threads=threads, conf=calibrator_conf(pinhole))
+    result = run_sequence(
+        frames, calibrator, baseline_m=baseline, pinhole=pinhole, workspace=workspace, progress=stage,
+        stop=stop, rotate=rotate,
+    )  # fmt: skip
+    if result is None or stop.requested:
+        return [], None
+    if output is None:
+        return [], result
+    stage(0, None, "writing the results")
+    return write_sequence(output, result, names, overwrite=overwrite, stop=stop), result
+
+
+class _StageProgress:
+    """A long command's stages on stderr, called as ``progress(done, total, stage)`` (a new ``stage``
+    starts a stage). ``mode``: "bar", a live line per stage on a terminal (what it does, a bar and the count
+    where they are known, the time spent and, where counted, left), each left standing when it ends; "log",
+    one plain line per stage as it ends (what it did, its count, the time spent); "off": nothing."""
+
+    def __init__(self, mode: str):
+        self.mode = mode
+        self._bar = self._task = self._stage = None
+        self._done, self._total, self._start = 0, None, 0.0
 
     def __enter__(self):
-        if self.show:
-            from rich.progress import Progress
+        if self.mode == "bar":
+            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+            from rich.table import Column
 
-            self._progress = Progress(console=_stderr_console(), transient=True)
-            self._progress.start()
-            self._task = self._progress.add_task(f"reading {self.description}", total=None)
+            self._bar = Progress(
+                # the stage's name cut short before the bar, its count and its times are
+                TextColumn("{task.description}", table_column=Column(max_width=36, no_wrap=True,
+                                                                     overflow="ellipsis")),
+                BarColumn(bar_width=20), TextColumn("{task.fields[count]}"), TimeElapsedColumn(),
+                TimeRemainingColumn(),
+                console=_stderr_console(), transient=False,
+            )  # fmt: skip
+            self._bar.start()
         return self
 
     def __call__(self, done: int, total: int | None, stage: str | None = None) -> None:
-        if self._progress is not None:
-            self._progress.update(self._task, completed=done, total=total, **(
-                {"description": stage} if stage else {}
-            ))  # fmt: skip
+        import time
 
-    def __exit__(self, *exc) -> None:
-        if self._progress is not None:
-            self._progress.stop()
+        if self.mode == "off":
+            return
+        if stage is not None and stage != self._stage:
+            self._end()
+            self._stage, self._start = stage, time.perf_counter()
+            if self._bar is not None:
+                self._task = self._bar.add_task(stage, total=total, count="")
+        self._done, self._total = done, total
+        if self._bar is not None and self._task is not None:
+            count = f"{done}/{total}" if total else ""
+            self._bar.update(self._task, completed=done, total=total, count=count)
+
+    def _end(self, stopped: bool = False) -> None:
+        """End the stage in flight: complete, or ``stopped`` before its end."""
+        import time
+
+        if self._stage is None:
+            return
+        if self._bar is not None:  # the stage's line stays, with its time (and full where complete)
+            if not stopped:
+                self._bar.update(self._task, total=self._total or 1, completed=self._total or 1)
+            self._bar.stop_task(self._task)
+            self._bar.refresh()
+        else:
+            count = f", {self._done} of {self._total}" if self._total else ""
+            elapsed = time.perf_counter() - self._start
+            ended = f"stopped after {elapsed:.1f} s" if stopped else f"{elapsed:.1f} s"
+            print(f"{self._stage}{count}: {ended}", file=sys.stderr, flush=True)
+        self._stage = None
+
+    def stopped(self) -> None:
+        """The run was stopped (a signal): the stage in flight ends as stopped."""
+        self._end(stopped=True)
+
+    def __exit__(self, kind, *exc) -> None:
+        if kind is None or issubclass(kind, KeyboardInterrupt):  # done, or stopped by a second signal
+            self._end(stopped=kind is not None)
+        self._stage = None  # an error: its own line says what went wrong
+        if self._bar is not None:
+            self._bar.stop()
 
 
-def _print_sequence_summary(report: dict, console) -> None:
-    """The rig's focal lengths with their evidence, R, T and the sequence's figures."""
+def _print_sequence_summary(report: dict, console, warnings_console) -> None:
+    """The rig's focal lengths with their evidence, R, T and the sequence's figures; the warnings on
+    ``warnings_console`` (stderr)."""
     seq = report["sequence"]
     focal = seq["evidence"]["focal"]
     for side in ("left", "right"):
@@ -811,7 +928,7 @@ def _print_sequence_summary(report: dict, console) -> None:
         + ("fixed by the motion" if seq["focal_observable"] else "NOT fixed by the motion (from the pairs)")
     )
     for warning in report.get("warnings") or []:
-        console.print(f"[yellow]warning:[/yellow] {warning}")
+        warnings_console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
 
 
 @app.command("export-onnx")
@@ -1062,11 +1179,12 @@ def _print_evaluation(results: dict) -> None:
     from rich.console import Console
     from rich.table import Table
 
+    from stereogeo_cli.io.text import plural
+
     console = Console()
     metrics = results["metrics"]
-    table = Table(
-        title=f"{results['dataset']}: {metrics['pairs']['evaluated']} of {metrics['pairs']['total']} pairs"
-    )
+    pairs = metrics["pairs"]
+    table = Table(title=f"{results['dataset']}: {pairs['evaluated']} of {plural(pairs['total'], 'pair')}")
     for column in ("metric", "median", "mean", "AUC@1°", "AUC@5°", "AUC@10°"):
         table.add_column(column, justify="right" if column != "metric" else "left")
     for key, label in (("roll_deg", "roll (°)"), ("pitch_deg", "pitch (°)"), ("vfov_deg", "vFoV (°)")):
@@ -1158,8 +1276,26 @@ def _print_photo_evaluation(results: dict) -> None:
 
 
 def main() -> None:
+    """The console script: every error one line on stderr with its exit code, usage errors included
+    (``error: Invalid value for '--every': ...``, exit code 2, with the command's ``--help`` named)."""
+    click = sys.modules[typer.BadParameter.__module__]  # Typer's click: the package or its vendored copy
+
     try:
-        app()
+        code = app(standalone_mode=False)
+    except click.NoArgsIsHelpError as error:  # a bare command: its help, as Typer shows it
+        from typer import rich_utils
+
+        rich_utils.rich_format_error(error)
+        sys.exit(error.exit_code)
+    except click.ClickException as error:
+        context = getattr(error, "ctx", None)
+        hint = f" (see {context.command_path} --help)" if context is not None else ""
+        typer.echo(f"error: {error.format_message()}{hint}", err=True)
+        sys.exit(error.exit_code)
+    except click.Abort:  # the end of standard input at a prompt
+        typer.echo("error: aborted", err=True)
+        sys.exit(EXIT_INTERNAL)
     except StereoGeoError as error:  # raised outside a command body (e.g. while importing a plugin)
         typer.echo(f"error: {error}", err=True)
         sys.exit(error.exit_code)
+    sys.exit(code if isinstance(code, int) else 0)

@@ -10,6 +10,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -211,6 +212,19 @@ def test_empty_folder(onnx_model, tmp_path):
                  2, "no stereo pairs")  # fmt: skip
 
 
+def test_a_folder_without_pairs_is_told_the_layouts_in_the_message_itself(onnx_model, tmp_path):
+    # the installed package has no docs/ folder: the one line says what a folder of pairs looks like
+    (tmp_path / "empty").mkdir()
+    touch(tmp_path / "sides", "left/a.png", "right/b.png")
+    for folder, layouts in (
+        ("empty", ("left/ + right/", "cam0/ + cam1/", "<name>_left + <name>_right", "<name>_L + <name>_R")),
+        ("sides", ("left/", "right/", "same name")),
+    ):
+        args = ("batch-calibrate", tmp_path / folder, "-o", tmp_path / "out", "--model", onnx_model)
+        line = assert_error(invoke(*args), 2, "no stereo pairs", *layouts)
+        assert "docs" not in line and ".md" not in line, line
+
+
 def test_usage_errors(small_images, onnx_model, tmp_path):
     folder = pair_folder(tmp_path, small_images, ("a",))
     blocker = tmp_path / "file"
@@ -229,6 +243,26 @@ def test_usage_errors(small_images, onnx_model, tmp_path):
             invoke(*base[:2], "-o", tmp_path / "o", "--model", corrupt, "--workers", workers), 2, "bad.onnx"
         )
     assert not (tmp_path / "o" / "a").exists()
+
+
+def test_one_pair_is_counted_as_one_pair(small_images, onnx_model, tmp_path):
+    folder = pair_folder(tmp_path / "in", small_images, ("a",))
+    base = ("batch-calibrate", folder, "-o", tmp_path / "out", "--model", onnx_model, "--format", "json")
+    result = invoke(*base)
+    assert result.exit_code == 0, result.output
+    assert result.stdout.startswith("1 pair: 1 ok, 0 failed; results in "), result.stdout
+    result = invoke(*base, "--resume")
+    assert result.exit_code == 0, result.output
+    assert "resuming: 1 of 1 pair taken from " in result.stderr, result.stderr
+    assert result.stdout.startswith("1 pair: 1 ok, 0 failed (1 kept from before); "), result.stdout
+    assert "1 pairs" not in result.output
+
+
+def test_counts_in_messages():
+    from stereogeo_cli.io.text import plural
+
+    assert [plural(n, "pair") for n in (0, 1, 2)] == ["0 pairs", "1 pair", "2 pairs"]
+    assert [plural(n, "process", "processes") for n in (1, 3)] == ["1 process", "3 processes"]
 
 
 def test_shard_writes_its_own_summary(small_images, onnx_model, tmp_path):
@@ -624,6 +658,46 @@ def test_resume_calibrates_again_what_does_not_match(small_images, onnx_model, t
     assert json.loads((out / "a" / "report.json").read_text())["rotate_deg"] == 180
 
 
+def leftover(folder: Path, target: str) -> Path:
+    """A temporary file of write_files_atomically for ``target``, as a killed write leaves it."""
+    fd, name = tempfile.mkstemp(dir=folder, prefix=f".{target}.", suffix=".tmp")
+    os.write(fd, b"half written")
+    os.close(fd)
+    return Path(name)
+
+
+@pytest.mark.slow
+def test_resume_removes_what_killed_writes_left_and_nothing_else(small_images, onnx_model, tmp_path):
+    folder = pair_folder(tmp_path / "in", small_images, ("a", "b"))
+    out = tmp_path / "out"
+    base = ("batch-calibrate", folder, "-o", out, "--model", onnx_model, "--format", "json,ros")
+    assert invoke(*base).exit_code == 0
+    planted = [leftover(out, "summary.csv"), leftover(out, "summary.json"), leftover(out / "a", "left.yaml"),
+               leftover(out / "a", MARKER), leftover(out / "b", "report.json")]  # fmt: skip
+    (out / "b" / "report.json").unlink()  # the pair was being written when the run was killed
+    (out / ".b.abcd1234.tmp").mkdir()  # a folder of that name is no temporary file
+    unrelated = {
+        out / "notes.tmp": b"mine",
+        out / ".summary.csv.tmp": b"no random part",
+        out / ".summary-shard-1-of-2.csv.abcd_123.tmp": b"another shard's, maybe in the making",
+        out / ".b.abcd1234.tmp" / "inside": b"in a folder",
+        out / "a" / "left.yaml.abcd1234.tmp": b"no leading dot",
+        out / "a" / ".left.yaml.ABCD1234.tmp": b"not mkstemp's letters",
+        out / "a" / ".left.yaml.abcd1234.tmp.bak": b"another suffix",
+    }
+    for path, data in unrelated.items():
+        path.write_bytes(data)
+    kept = {p.name: p.stat().st_mtime_ns for p in (out / "a").iterdir() if p not in [*planted, *unrelated]}
+    result = invoke(*base, "--resume")
+    assert result.exit_code == 0, result.output
+    assert "resuming: 1 of 2 pairs" in result.stderr
+    assert not [p for p in planted if p.exists()]
+    assert {p: p.read_bytes() for p in unrelated} == unrelated
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "a").iterdir() if p.name in kept} == kept
+    assert sorted(p.name for p in (out / "b").iterdir()) == [MARKER, "left.yaml", "report.json", "right.yaml"]
+    assert json.loads((out / "summary.json").read_text())["counts"]["ok"] == 2
+
+
 # The real command in a subprocess, stopped as a terminal's Ctrl-C or a cluster's time limit stops it: the
 # signal goes to every process of the command (its process group), workers included.
 PAIRS = 6
@@ -770,3 +844,79 @@ def test_a_second_ctrl_c_stops_the_workers_at_once(many_pairs, onnx_model, tmp_p
     # every file is whole; the pair a killed worker was writing (if any) has no marker: not done
     assert not list(out.rglob("*.tmp"))
     assert {p.parent.name for p in out.glob(f"*/{MARKER}")} == ok
+
+
+def process_states() -> dict[int, tuple[int, str]]:
+    """Every process's (parent pid, state) from /proc."""
+    states = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue  # gone meanwhile
+        # "pid (comm) state ppid ...", where comm may hold ")"
+        state, ppid = text[text.rindex(")") + 2 :].split()[:2]
+        states[int(stat.parent.name)] = (int(ppid), state)
+    return states
+
+
+def descendants(pid: int) -> set[int]:
+    """The live processes below ``pid``: its children, theirs, and so on."""
+    states = process_states()
+    found, todo = set(), [pid]
+    while todo:
+        parent = todo.pop()
+        for child, (ppid, state) in states.items():
+            if ppid == parent and state != "Z" and child not in found:
+                found.add(child)
+                todo.append(child)
+    return found
+
+
+def alive(pid: int) -> bool:
+    """The process is there and not a zombie (one whose parent is gone is reaped by init, if ever)."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return text[text.rindex(")") + 2] != "Z"
+
+
+def command_line(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="reads the processes from /proc")
+def test_workers_and_the_resource_tracker_end_when_the_batch_is_killed(many_pairs, onnx_model, tmp_path):
+    out, log = tmp_path / "out", tmp_path / "stderr.txt"
+    args = (many_pairs, "-o", out, "--model", onnx_model, "--workers", "2")
+    with open(log, "w") as stderr:
+        proc = subprocess.Popen(batch_command(*args), stdout=subprocess.DEVNULL, stderr=stderr,
+                                start_new_session=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 180
+        while not list(out.glob(f"*/{MARKER}")):  # the workers are up and calibrating
+            assert proc.poll() is None, f"the batch ended before a pair was written: {log.read_text()}"
+            assert time.monotonic() < deadline, "no pair written in time"
+            time.sleep(0.05)
+        below = descendants(proc.pid)
+        workers = [pid for pid in below if "spawn_main" in command_line(pid)]
+        trackers = [pid for pid in below if "resource_tracker" in command_line(pid)]
+        assert len(workers) == 2 and len(trackers) == 1, {pid: command_line(pid) for pid in below}
+        os.kill(proc.pid, signal.SIGKILL)  # the parent alone, as the OOM killer or `kill -9` does
+        proc.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while [pid for pid in below if alive(pid)] and time.monotonic() < deadline:
+            time.sleep(0.1)
+        left = {pid: command_line(pid) for pid in below if alive(pid)}
+        assert not left, f"still running 10 s after the batch was killed: {left}"
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait()

@@ -192,3 +192,53 @@ def test_written_files_have_usual_permissions(tmp_path):
 if __name__ == "__main__":
     written = write_calibration(GOLDEN, golden_rig())
     print("regenerated:", *written, sep="\n  ", file=sys.stderr)
+
+
+def test_format_files_name_what_each_format_writes():
+    from stereogeo_cli.io.writers import FORMAT_FILES, render_calibration
+
+    for name, files in FORMAT_FILES.items():
+        assert tuple(render_calibration(golden_rig(), (name,))) == files, name
+
+
+def test_a_folder_is_replaced_whole_in_one_step(tmp_path):
+    out = tmp_path / "out"
+    old = {"report.json": "old", "left.yaml": "old", "sparse/0/points.bin": b"1"}
+    atomic.replace_folder_atomically(out, old)
+    written = atomic.replace_folder_atomically(out, {"report.json": "new", "sparse/0/cameras.bin": b"2"})
+    assert written == [out / "report.json", out / "sparse/0/cameras.bin"]
+    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == [
+        "report.json", "sparse", "sparse/0", "sparse/0/cameras.bin"
+    ]  # fmt: skip
+    assert (out / "report.json").read_text() == "new"
+    assert os.listdir(tmp_path) == ["out"]  # no staging or old folder left beside it
+    assert (out.stat().st_mode & 0o777) == 0o777 & ~_umask()
+
+
+def test_an_interrupted_folder_replacement_leaves_the_folder_as_it_was(tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    atomic.replace_folder_atomically(out, {"report.json": "old", "left.yaml": "old"})
+
+    def interrupt(fd):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(atomic.os, "fsync", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        atomic.replace_folder_atomically(out, {"report.json": "new"})
+    assert {p.name: p.read_text() for p in out.iterdir()} == {"report.json": "old", "left.yaml": "old"}
+    assert os.listdir(tmp_path) == ["out"]
+
+
+def test_a_folder_replacement_without_an_exchange_goes_by_two_renames(tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    atomic.replace_folder_atomically(out, {"a.txt": "old"})
+    monkeypatch.setattr(atomic, "_exchange", lambda a, b: False)  # a system without renameat2
+    atomic.replace_folder_atomically(out, {"b.txt": "new"})
+    assert [p.name for p in out.iterdir()] == ["b.txt"]
+    assert os.listdir(tmp_path) == ["out"]
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask

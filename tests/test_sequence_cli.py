@@ -6,9 +6,13 @@ from __future__ import annotations
 import json
 import math
 import os
+import queue
+import re
+import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -227,3 +231,166 @@ def test_a_bag_without_the_topic_is_one_line_and_exit_2(tmp_path):
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "/cam1/image_raw" in lines[0]
     assert not (tmp_path / "out").exists()
+
+
+# ------------------------------------------------------------------------------ signals, reruns, progress
+
+# a stage's log line on stderr where it is no terminal: "COLMAP: mapping: 3.4 s", "reading …, 5 of 16: …"
+STAGE_LINE = re.compile(r"^[^:]+(: [^:]+)?(, \d+ of \d+)?: (stopped after )?\d+\.\d s$")
+
+
+class _Running:
+    """``calibrate-sequence`` running in the background, its stderr read line by line as it comes."""
+
+    def __init__(self, *args, env=None):
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "stereogeo_cli", "calibrate-sequence", *map(str, args)],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+        )  # fmt: skip
+        self.lines: queue.Queue = queue.Queue()
+        self.stderr: list[str] = []
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        for line in self.process.stderr:
+            self.lines.put(line)
+        self.lines.put(None)
+
+    def wait_for(self, start: str, timeout: float = 240) -> None:
+        """Wait until a line of stderr starts with ``start`` (a stage that ended)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                line = self.lines.get(timeout=1)
+            except queue.Empty:
+                continue
+            if line is None:
+                break
+            self.stderr.append(line.rstrip("\n"))
+            if line.startswith(start):
+                return
+        raise AssertionError(f"no line {start!r} on stderr: {self.stderr}")
+
+    def finish(self, timeout: float = 240) -> tuple[int, list[str]]:
+        self.process.wait(timeout=timeout)
+        while (line := self.lines.get(timeout=10)) is not None:
+            self.stderr.append(line.rstrip("\n"))
+        return self.process.returncode, self.stderr
+
+
+@pytest.mark.parametrize(
+    "moment",
+    [
+        "while Python starts",
+        "while frames are read",  # after the network is loaded
+        "inside COLMAP",  # its matching, after every frame is read
+    ],
+)
+def test_sigterm_at_any_moment_exits_143_with_one_line_and_leaves_nothing(tmp_path, turning, moment):
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    out = tmp_path / "out"
+    running = _Running(turning[0], "-o", out, env={**os.environ, "TMPDIR": str(temporary)})
+    if moment == "while Python starts":
+        time.sleep(0.3)
+    else:
+        running.wait_for("loading the network" if moment == "while frames are read" else "reading")
+        time.sleep(1.0)
+    running.process.send_signal(signal.SIGTERM)
+    code, stderr = running.finish()
+    assert code == 143, stderr
+    *stages, last = stderr
+    assert last.startswith("error: interrupted by SIGTERM"), stderr
+    assert all(STAGE_LINE.match(line) for line in stages), stderr  # no stack, native or Python's
+    if moment == "inside COLMAP":
+        assert stages[-1].startswith("COLMAP: matching the frames: stopped after"), stderr
+    assert not out.exists()
+    assert not [p.name for p in temporary.iterdir() if p.name.startswith("stereogeo")]
+
+
+def test_a_rerun_into_a_used_folder_is_refused_and_overwrite_replaces_it_whole(tmp_path, turning):
+    folder, _, first, _ = turning
+    out = tmp_path / "out"
+    shutil.copytree(first, out)
+    before = sorted(str(p.relative_to(out)) for p in out.rglob("*"))
+    assert "left.yaml" in before and "trajectory.txt" in before
+    done = _stereogeo("calibrate-sequence", folder, "-o", out, "--format", "json", check=False)
+    assert done.returncode == 2
+    (line,) = done.stderr.strip().splitlines()
+    assert str(out) in line and "--overwrite" in line
+    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == before
+
+    done = _stereogeo("calibrate-sequence", folder, "-o", out, "--format", "json", "--overwrite")
+    assert sorted(p.name for p in out.iterdir()) == ["report.json", "sparse", "trajectory.txt"]
+    assert os.listdir(tmp_path) == ["out"]  # no staging or old folder beside it
+    report = json.loads((out / "report.json").read_text())
+    assert report["sequence"]["frames_registered"] == 16
+    # without a terminal, each stage is one log line on stderr as it ends, with its time
+    stages = [line for line in done.stderr.splitlines() if STAGE_LINE.match(line)]
+    first = ["opening the source", "loading the network", "reading and calibrating frame pairs, 16 of 16"]
+    assert [s.split(":")[0] for s in stages][:3] == first
+    assert any(s.startswith("COLMAP: mapping: ") for s in stages)
+    assert any(s.startswith("writing the results: ") for s in stages)
+
+    (out / "notes.txt").write_text("mine")  # not a sequence's: --overwrite does not delete it
+    done = _stereogeo("calibrate-sequence", folder, "-o", out, "--overwrite", check=False)
+    assert done.returncode == 2 and "notes.txt" in done.stderr
+    assert (out / "notes.txt").read_text() == "mine"
+
+
+def test_warnings_go_to_stderr_and_the_summary_to_stdout(tmp_path):
+    folder = _render(tmp_path / "seq", "static", 4, 7)
+    done = _stereogeo("calibrate-sequence", folder, "-o", tmp_path / "out", check=False)
+    assert done.returncode in (0, 3), done.stderr
+    if done.returncode == 3:  # nothing to reconstruct from: one line saying why
+        return
+    assert "warning:" in done.stderr and "the motion does not fix the focal length" in done.stderr
+    assert "warning:" not in done.stdout and "focal" in done.stdout
+
+
+def _quick(tmp_path, *args) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "stereogeo_cli", *map(str, args)], cwd=tmp_path, capture_output=True,
+        text=True, timeout=300,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["calibrate-sequence", ".", "--every", "0"], "--every must be at least 1"),
+        (["calibrate-sequence", ".", "--fps", "nan"], "--fps must be a positive number"),
+        (["calibrate-sequence", ".", "--max-frames", "0"], "--max-frames must be at least 1"),
+        (["calibrate-sequence", ".", "--stamp-tolerance", "-1"], "--stamp-tolerance must be 0 s or more"),
+        (["calibrate-sequence", ".", "--stamp-tolerance", "0.05"], "--stamp-tolerance is for bags only"),
+        (["calibrate-sequence", ".", "--workspace", "file.txt"], "--workspace file.txt is a file"),
+        (["calibrate-sequence", ".", "--bogus"], "No such option: --bogus"),
+        (["calibrate"], "Missing argument"),
+    ],
+)
+def test_a_usage_error_is_one_line_and_exit_2(tmp_path, args, words):
+    (tmp_path / "file.txt").write_text("not a folder")
+    done = _quick(tmp_path, *args)
+    assert done.returncode == 2
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith("error: ") and words in line, line
+    assert done.stdout == ""
+
+
+def test_a_bag_of_free_running_cameras_pairs_with_a_wider_stamp_tolerance(tmp_path):
+    from test_sequence_sources import ROS1, T0, image_msg, noise, write_bag
+
+    step, offset = 100_000_000, 30_000_000  # 10 Hz, the right camera 30 ms after the left
+    left = [image_msg(ROS1, T0 + i * step, noise(64, 80, i), "rgb8") for i in range(2)]
+    right = [image_msg(ROS1, T0 + i * step + offset, noise(64, 80, 9 + i), "rgb8") for i in range(2)]
+    write_bag(tmp_path / "run.bag", {"/left": left, "/right": right})
+    topics = ["--left-topic", "/left", "--right-topic", "/right"]
+    done = _quick(tmp_path, "calibrate-sequence", "run.bag", *topics, "--no-progress")
+    assert done.returncode == 2
+    (line,) = done.stderr.strip().splitlines()
+    assert "within 0.01 s" in line and "--stamp-tolerance" in line
+    # paired within 50 ms: one pair read (of --max-frames 1) is then too few for a sequence
+    done = _quick(tmp_path, "calibrate-sequence", "run.bag", *topics, "--stamp-tolerance", "0.05",
+                  "--max-frames", "1", "--no-progress")  # fmt: skip
+    assert done.returncode == 2
+    assert "a sequence needs 2 frame pairs or more (1 read)" in done.stderr.strip().splitlines()[-1]

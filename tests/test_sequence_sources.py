@@ -228,6 +228,36 @@ def test_two_lossless_videos_pair_by_frame_number_and_stop_at_the_shorter(tmp_pa
     assert "l.mkv" in source.description and "r.mkv" in source.description
 
 
+def _truncated_avi(path: Path, frames: list[np.ndarray], kept: int) -> None:
+    """An MJPG AVI whose header declares every frame of ``frames`` but whose data ends after ``kept``: a
+    recording cut short (the file copied while it was written, a camera that lost power)."""
+    write_video(path, frames, "MJPG")
+    data = path.read_bytes()
+    movi = data.index(b"movi")
+    chunks = [i for i in range(movi, len(data) - 4) if data[i : i + 4] == b"00dc"]  # one per frame
+    path.write_bytes(data[: chunks[kept]])
+
+
+def test_a_truncated_video_says_so(tmp_path):
+    frames = [scene(96, 128, i) for i in range(14)]
+    write_video(tmp_path / "l.avi", frames, "MJPG")
+    _truncated_avi(tmp_path / "r.avi", frames, 8)
+    source = open_source(video=(tmp_path / "l.avi", tmp_path / "r.avi"))
+    assert len(list(source)) == 8
+    (warning,) = [w for w in source.warnings if "truncated" in w]
+    assert "r.avi" in warning and "8 frames" in warning and "14" in warning
+    list(source)  # read again: said once
+    assert sum("truncated" in w for w in source.warnings) == 1
+
+    sbs = [np.concatenate([f, f], axis=1) for f in frames]
+    _truncated_avi(tmp_path / "sbs.avi", sbs, 5)
+    source = open_source(sbs=tmp_path / "sbs.avi")
+    assert len(list(source)) == 5
+    assert any("sbs.avi" in w and "truncated" in w for w in source.warnings)
+    complete = open_source(video=(tmp_path / "l.avi", tmp_path / "l.avi"))
+    assert len(list(complete)) == 14 and not complete.warnings
+
+
 def test_mjpg_videos_decode_approximately(tmp_path):
     frames = [scene(96, 128, i) for i in range(3)]
     write_video(tmp_path / "l.avi", frames, "MJPG")

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.io.text import plural
 
 IMAGE_EXTENSIONS = frozenset(
     ".png .jpg .jpeg .jpe .jp2 .tif .tiff .bmp .dib .webp .ppm .pgm .pbm .pnm .pxm .pfm .sr .ras .exr .hdr "
@@ -111,10 +112,13 @@ def discover_pairs(folder: str | os.PathLike) -> list[PairEntry]:
             for path in _images(side_dir):
                 groups.setdefault(path.stem, {}).setdefault(side, []).append(path)
         entries = _match(groups, labels)
-        layout = f"{labels[0]} + {labels[1]}"
+        layout = f"a left image in {labels[0]} and a right image of the same name in {labels[1]}"
         break
     else:
-        layout = "<name>_left/_right or <name>_L/_R image files"
+        layout = (
+            "left/ + right/ or cam0/ + cam1/ folders of images with the same names, or <name>_left + "
+            "<name>_right (or <name>_L + <name>_R) image files in the folder itself"
+        )
         for path in _images(folder):
             m = _SIDE_SUFFIX.match(path.stem)
             if m is None:
@@ -125,8 +129,8 @@ def discover_pairs(folder: str | os.PathLike) -> list[PairEntry]:
             groups.setdefault(m["name"], {}).setdefault(side, []).append(path)
         entries += _match(groups, ("left", "right"))
     if not any(e.problem is None for e in entries):
-        found = f" ({len(entries)} unmatched image{'s' * (len(entries) != 1)})" if entries else ""
-        raise StereoGeoError(f"no stereo pairs in {folder}{found}; expected {layout} (see docs/batch.md)")
+        found = f" ({plural(len(entries), 'unmatched image')})" if entries else ""
+        raise StereoGeoError(f"no stereo pairs in {folder}{found}; expected {layout}")
     return sorted(entries, key=lambda e: _natural_key(e.name))
 
 

@@ -36,14 +36,19 @@ child until it ignores them) and call :func:`worker_ignores_signals` first in ea
 ``ProcessPoolExecutor``'s ``initializer``). After the first signal the parent lets the workers finish the
 items in flight; after a second it kills them (``multiprocessing.Process.kill``) and removes what they
 left unfinished (:func:`stereogeo_cli.io.atomic.write_files_atomically` leaves only ``.<name>.*.tmp``
-files: a target file is never half written).
+files: a target file is never half written). A parent killed outright (SIGKILL, the OOM killer) can do
+none of this: :func:`worker_exits_with_parent`, also called first in each worker, ends the worker as soon
+as its parent is gone, so that no worker goes on alone (what it was writing is left as ``.tmp`` files,
+which ``--resume`` removes).
 """
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import signal
 import threading
+import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
@@ -194,3 +199,33 @@ def worker_ignores_signals(signals: Sequence[int] = SIGNALS) -> None:
         signal.signal(s, signal.SIG_IGN)
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, signals)
+
+
+EXIT_PARENT_GONE = 1  # a worker's exit code when its parent is gone
+
+
+def worker_exits_with_parent(poll_s: float = 1.0) -> None:
+    """In a worker process: end the process (``os._exit``) as soon as its parent process is gone.
+
+    A daemon thread waits on the parent's sentinel (:func:`multiprocessing.parent_process`: ready when the
+    parent dies); a process that has none (not started by :mod:`multiprocessing`) instead checks every
+    ``poll_s`` seconds whether it was handed to another parent (``os.getppid()``). No cleanup runs: a worker
+    ignores SIGINT and SIGTERM (:func:`worker_ignores_signals`), and nothing else would stop it."""
+    parent = multiprocessing.parent_process()
+    sentinel = getattr(parent, "sentinel", None)
+    ppid = os.getppid()
+
+    def watch() -> None:
+        if sentinel is not None:
+            from multiprocessing.connection import wait
+
+            try:
+                wait([sentinel])  # blocks until the parent's end of the pipe is closed: it is gone
+                os._exit(EXIT_PARENT_GONE)
+            except OSError:  # the sentinel cannot be waited on: watch the parent's pid instead
+                pass
+        while os.getppid() == ppid:
+            time.sleep(poll_s)
+        os._exit(EXIT_PARENT_GONE)
+
+    threading.Thread(target=watch, name="stereogeo-parent-watch", daemon=True).start()

@@ -157,6 +157,19 @@ def existing_results(out_dir: Path, names, summary_stem: str, rig_folder: str | 
     return found
 
 
+def remove_leftovers(out_dir: Path, names, summary_stem: str, rig_folder: str | None) -> list[Path]:
+    """Remove what a run killed mid-write left of its atomic writes (their ``.<name>.XXXXXXXX.tmp`` files,
+    :func:`~stereogeo_cli.io.atomic.remove_leftovers`): in the folders of the pairs ``names`` and in
+    ``rig_folder``, and in ``out_dir`` those of the summary files ``summary_stem``.csv/.json (another
+    shard's may be in the making). Returns the files removed."""
+    from stereogeo_cli.io.atomic import remove_leftovers as remove
+
+    removed = remove(out_dir, [f"{summary_stem}.csv", f"{summary_stem}.json"])
+    for name in [*names, *([rig_folder] if rig_folder else [])]:
+        removed += remove(out_dir / name)
+    return removed
+
+
 # ---------------------------------------------------------------------------------- --same-rig evidence
 
 

@@ -27,9 +27,11 @@ from stereogeo_cli.batch.interrupt import (
     Stop,
     protected,
     signals_blocked,
+    worker_exits_with_parent,
     worker_ignores_signals,
 )
 from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.io.text import plural
 from stereogeo_cli.pipeline import calibrator_conf, usable_cores
 
 RIG_FOLDER = "rig"  # --same-rig: the joint calibration's folder in OUT
@@ -209,6 +211,7 @@ _WORKER: dict[str, Any] = {}  # the process's Calibrator in a worker process
 
 def _init_worker(threads: int) -> None:
     worker_ignores_signals()  # Ctrl-C reaches the whole process group: the parent stops the workers
+    worker_exits_with_parent()  # a parent killed outright (SIGKILL) cannot: the worker ends with it
     import cv2
 
     cv2.setNumThreads(max(threads, 1))
@@ -392,11 +395,12 @@ def _kill_workers(pool: ProcessPoolExecutor, in_flight: list[PairEntry], job: Pa
     pool.shutdown(wait=False, cancel_futures=True)
     if job.out_dir is None:
         return
+    from stereogeo_cli.io.atomic import remove_leftovers
+
     for entry in in_flight:
         folder = job.out_dir / entry.name
+        remove_leftovers(folder)
         try:
-            for leftover in folder.glob(".*.tmp"):
-                leftover.unlink(missing_ok=True)
             folder.rmdir()  # only if the pair had written nothing yet
         except OSError:
             pass
@@ -535,7 +539,9 @@ def run_batch(
         resume: take each pair whose folder holds a complete calibration made with the same options, model
             and images (stereogeo_cli/batch/resume.py) from it, and calibrate the others.
         overwrite: replace what ``out_dir`` holds. Without ``resume`` or ``overwrite``, an ``out_dir`` that
-            already holds results of these pairs (their folders, the summaries, ``rig/``) is refused.
+            already holds results of these pairs (their folders, the summaries, ``rig/``) is refused; with
+            either, the temporary files of the atomic writes that a run killed mid-write left there go first
+            (:func:`stereogeo_cli.batch.resume.remove_leftovers`).
         stop: the :class:`~stereogeo_cli.batch.interrupt.Stop` of an active ``interruptible()`` block: once
             a signal comes, no pair is started, the pairs in flight are finished (at a second signal: the
             workers are stopped at once), the summaries are written with the other pairs "not run", and the
@@ -563,13 +569,16 @@ def run_batch(
         if found:
             folders = sum(p.is_dir() for p in found)
             what = ", ".join(
-                [f"{folders} folder{'s' if folders > 1 else ''}"] * (folders > 0)
-                + [p.name for p in found if not p.is_dir()]
+                [plural(folders, "folder")] * (folders > 0) + [p.name for p in found if not p.is_dir()]
             )
             raise StereoGeoError(
                 f"{out_dir} already holds results ({what}): add --resume to keep them and calibrate only the "
                 "pairs not done, or --overwrite to replace them"
             )
+    if resume or overwrite:  # what a run killed mid-write left behind goes first
+        resuming.remove_leftovers(
+            out_dir, [e.name for e in pairs], summary_stem(shard), RIG_FOLDER if same_rig else None
+        )
     calibrator_cache: list = []
 
     def calibrator():  # the in-process session, made once (and only when needed)
@@ -607,7 +616,7 @@ def run_batch(
                         report, time_ms, evidence = kept
                         done[i] = PairOutcome(e.name, e.left, e.right, "ok", "", report, time_ms, evidence)
                 summary.resumed = sum(o is not None for o in done)
-                bar.line(f"resuming: {summary.resumed} of {len(pairs)} pairs taken from {out_dir}")
+                bar.line(f"resuming: {summary.resumed} of {plural(len(pairs), 'pair')} taken from {out_dir}")
             todo = [i for i, o in enumerate(done) if o is None]
             if workers <= 1 and todo and not (stop is not None and stop.requested):
                 calibrator()  # a bad model fails here, before any pair

@@ -26,6 +26,7 @@ import numpy as np
 from stereogeo_cli.batch.discovery import PairEntry
 from stereogeo_cli.batch.run import PairJob, PairOutcome, RigEvidence, _Progress, _run_pass
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
+from stereogeo_cli.io.text import plural
 from stereogeo_cli.pipeline import calibrator_conf, with_rotation_noted
 
 POOL_THRESHOLD_PX = 2.0  # a match joins the same-rig pool if its Sampson error under its pair's pose is below
@@ -198,8 +199,9 @@ def calibrate_rig(
         baseline = float(np.median([o.evidence.baseline_m for o in first if o.status == "ok"]))
         scale_source = "learned"
     notes = [
-        f"joint calibration of {len(ok)} pairs; gravity per pair in 'pairs'",
-        f"focal from {int(focals[0].used.sum())} (left) and {int(focals[1].used.sum())} (right) pairs",
+        f"joint calibration of {plural(len(ok), 'pair')}; gravity per pair in 'pairs'",
+        f"focal from {plural(int(focals[0].used.sum()), 'pair')} (left) and "
+        f"{plural(int(focals[1].used.sum()), 'pair')} (right)",
     ]
     return assemble(
         cameras, pose, baseline, scale_source, model, list(pose.notes), notes=notes,

@@ -1,4 +1,5 @@
-"""Number formatting shared by the YAML writers (ROS, Kalibr) and COLMAP's text file."""
+"""Text formatting: the numbers of the YAML writers (ROS, Kalibr) and COLMAP's text file, and the counts
+of messages."""
 
 from __future__ import annotations
 
@@ -20,3 +21,9 @@ def yaml_float(value: float) -> str:
 def flow_list(values: Iterable[float]) -> str:
     """``[a, b, c]`` with :func:`yaml_float` numbers."""
     return "[" + ", ".join(yaml_float(v) for v in values) + "]"
+
+
+def plural(count: int, word: str, words: str | None = None) -> str:
+    """``count`` and ``word``, in the plural unless ``count`` is 1 (``words``, else ``word`` + "s"):
+    ``"1 pair"``, ``"0 pairs"``, ``"3 pairs"``."""
+    return f"{count} {word if count == 1 else words or word + 's'}"

@@ -28,6 +28,14 @@ FORMATS: dict[str, Renderer] = {
     "json": render_report,  # report.json
 }
 DEFAULT_FORMATS = tuple(FORMATS)
+# the files each format writes: what a folder of stereogeo's results may hold
+FORMAT_FILES: dict[str, tuple[str, ...]] = {
+    "opencv": ("intrinsics.yml", "extrinsics.yml"),
+    "ros": ("left.yaml", "right.yaml"),
+    "kalibr": ("camchain.yaml",),
+    "colmap": ("cameras.txt",),
+    "json": ("report.json",),
+}
 
 
 def write_calibration(

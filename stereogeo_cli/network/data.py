@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from stereogeo_cli.geometry import ResizeCrop, apply_resize_crop
+from stereogeo_cli.io.text import plural
 from stereogeo_cli.network.runtime import DEPTH_STRIDE, cell_pixel_coordinates
 
 TRAIN_SIZES = ((256, 192), (320, 192), (224, 224), (192, 256))  # (width, height): 4:3, 5:3, 1:1, 3:4
@@ -312,7 +313,9 @@ class SizedBatches(torch.utils.data.Sampler):
             self.n_wide = round(self.n_ordinary * wide[2] / (1.0 - wide[2]) / world) * world
         self.per_epoch = (self.n_ordinary + self.n_wide) // world
         if self.n_ordinary < 1:
-            raise ValueError(f"{ordinary} pairs are too few for batches of {batch_size} on {world} processes")
+            processes = plural(world, "process", "processes")
+            few = f"{plural(ordinary, 'pair')} {'is' if ordinary == 1 else 'are'} too few"
+            raise ValueError(f"{few} for batches of {batch_size} on {processes}")
 
     def epoch_batches(self, epoch: int) -> list[list[tuple[int, int, int]]]:
         rng = np.random.default_rng([self.seed, epoch])

@@ -104,6 +104,9 @@ class SequenceModel:
     notes: list[str] = field(default_factory=list)
 
 
+CANCEL_WAIT_S = 30.0  # at most this long for COLMAP to end its work once cancelled
+
+
 class Cancelled(Exception):
     """The run was stopped (``stop.requested``) while COLMAP worked: nothing it made is used."""
 
@@ -116,19 +119,29 @@ def _cancellable(call, *args, stop=None, **kwargs):
 
     token = _pycolmap().CancellationToken()
     outcome: dict = {}
+    finished = threading.Event()  # not Thread.join: a join cut by a signal's exception may mark the thread
+    # ended while it still runs
 
     def run():
         try:
             outcome["value"] = call(*args, **kwargs, cancellation_token=token)
         except BaseException as error:  # noqa: BLE001 - handed to the waiting thread
             outcome["error"] = error
+        finally:
+            finished.set()
 
-    worker = threading.Thread(target=run, name="stereogeo-colmap", daemon=True)
-    worker.start()
-    while worker.is_alive():
-        worker.join(0.1)
-        if stop is not None and stop.requested and not token.is_cancelled:
-            token.cancel()
+    threading.Thread(target=run, name="stereogeo-colmap", daemon=True).start()
+    try:
+        while not finished.wait(0.1):
+            if stop is not None and stop.requested and not token.is_cancelled:
+                token.cancel()
+    except BaseException:  # a second signal: stop COLMAP too, since a thread still inside it when
+        token.cancel()  # Python exits aborts the process; a third signal waits for it as well
+        from stereogeo_cli.batch.interrupt import protected
+
+        with protected():
+            finished.wait(CANCEL_WAIT_S)
+        raise
     if token.is_cancelled:
         raise Cancelled()
     if "error" in outcome:
@@ -137,7 +150,26 @@ def _cancellable(call, *args, stop=None, **kwargs):
 
 
 def _pycolmap():
-    import pycolmap  # the COLMAP bindings load ~140 MB of libraries: only for sequences
+    """The COLMAP bindings (~140 MB of libraries: loaded only for sequences), imported with the process's
+    SIGINT and SIGTERM handlers kept: glog, loaded with them, installs its own over SIGTERM's, which
+    prints a native stack and kills the process instead of letting the run stop cleanly. The two signals
+    are blocked during the import, so one that comes meanwhile reaches the restored handler."""
+    import sys
+
+    if "pycolmap" not in sys.modules:
+        import signal
+        import threading
+
+        from stereogeo_cli.batch.interrupt import SIGNALS, signals_blocked
+
+        main = threading.current_thread() is threading.main_thread()
+        handlers = {s: signal.getsignal(s) for s in SIGNALS} if main else {}
+        with signals_blocked():
+            import pycolmap
+
+            for s, handler in handlers.items():
+                signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+    import pycolmap
 
     pycolmap.logging.minloglevel = 3  # COLMAP's own lines are not the user's: its failures come as errors
     return pycolmap
@@ -306,7 +338,7 @@ def _bundle_adjust(
     return float(ceres.final_cost), int(ceres.num_residuals_reduced - ceres.num_effective_parameters_reduced)
 
 
-def adjust(reconstruction, radial: bool, conf: dict):
+def adjust(reconstruction, radial: bool, conf: dict, stop=None):
     """One last bundle adjustment, and how well it fixes the focal lengths.
 
     COLMAP's covariance estimator does not take a rig's non-reference cameras, so the focal lengths'
@@ -323,13 +355,20 @@ def adjust(reconstruction, radial: bool, conf: dict):
     is always "significant": the share is the practical test). Elsewhere they stay at the image centre.
 
     Returns the (left, right) :class:`AdjustedCamera` (the same relative sigma for both) and the adjusted
-    reconstruction (``reconstruction`` itself, or its copy with the principal points freed)."""
+    reconstruction (``reconstruction`` itself, or its copy with the principal points freed). ``stop``: once
+    it is requested, :class:`Cancelled` is raised before the next of its adjustments."""
     pycolmap = _pycolmap()
+
+    def go_on() -> None:
+        if stop is not None and stop.requested:
+            raise Cancelled()
+
     cost, dof = _bundle_adjust(reconstruction, radial, refine_focal=True)
     noise = 2.0 * cost / max(dof, 1)
     delta = conf["profile_step"]
     rises = []
     for sign in (1.0, -1.0):
+        go_on()
         trial = pycolmap.Reconstruction(reconstruction)
         for camera in trial.cameras.values():
             params = np.array(camera.params)
@@ -340,6 +379,7 @@ def adjust(reconstruction, radial: bool, conf: dict):
     sigma_rel = delta / math.sqrt(2.0 * rise / noise) if rise > 0 and noise > 0 else math.inf
     free_centre = False
     if sigma_rel < conf["principal_point_below"]:
+        go_on()
         trial = pycolmap.Reconstruction(reconstruction)
         freed = _bundle_adjust(trial, radial, refine_focal=True, refine_principal_point=True)[0]
         if cost - freed > conf["principal_point_min_fall"] * cost:
@@ -495,24 +535,33 @@ def read_model(adjusted, models: int) -> SequenceModel:
 
 def reconstruct(
     workspace: str | os.PathLike, starts: tuple[CameraStart, CameraStart], R: np.ndarray, T: np.ndarray,
-    conf: dict | None = None, stop=None, features: dict | None = None,
+    conf: dict | None = None, stop=None, features: dict | None = None, progress=None,
 ) -> SequenceModel:  # fmt: skip
     """The whole bridge: match, map and adjust the frames in ``workspace/images/{left,right}/`` (the same
     file names in both, in time order), starting from ``starts`` and the rig (R, T). ``stop``: a
     :class:`~stereogeo_cli.batch.interrupt.Stop` whose request cancels COLMAP's work (:class:`Cancelled`).
+    ``progress``: called as ``progress(0, None, stage)`` when each of the three stages starts.
 
     Raises:
         CalibrationFailed: COLMAP made no model of at least ``min_model_frames`` frames.
     """
     conf = {**default_conf, **(conf or {})}
     workspace = Path(workspace)
+
+    def stage(name: str) -> None:
+        if progress is not None:
+            progress(0, None, name)
+
+    stage("COLMAP: matching the frames")
     database = match_frames(workspace, starts, R, T, conf, stop, features)
     radial = starts[0].radial or starts[1].radial
+    stage("COLMAP: mapping")
     models = map_frames(workspace, database, radial, conf, stop)
     if not models or models[0].num_reg_frames() < conf["min_model_frames"]:
         raise CalibrationFailed(
             "COLMAP could not reconstruct the sequence (too few frames share enough features): "
             "a sequence needs overlapping views of a textured scene"
         )
+    stage("COLMAP: bundle adjustment")
     largest = models[0]
-    return read_model(adjust(largest, radial, conf), len(models))
+    return read_model(adjust(largest, radial, conf, stop), len(models))

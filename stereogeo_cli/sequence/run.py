@@ -17,6 +17,7 @@ The stages, in order:
 from __future__ import annotations
 
 import math
+import os
 import shutil
 import tempfile
 import time
@@ -33,6 +34,7 @@ from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.fuse.assemble import finite, focal_sigmas
 from stereogeo_cli.geometry import intrinsic_matrix, rotation_angle
 from stereogeo_cli.io import StereoCalibration
+from stereogeo_cli.io.text import plural
 from stereogeo_cli.pipeline import with_rotation_noted
 from stereogeo_cli.refine.lines import detect_segments
 from stereogeo_cli.sequence import colmap
@@ -59,6 +61,11 @@ default_conf = {
     "colmap": {},  # overrides of stereogeo_cli.sequence.colmap.default_conf
     "evidence": {},  # overrides of stereogeo_cli.sequence.evidence.default_conf
 }
+
+
+# ``progress(done, total, stage)``: ``done`` of ``total`` items (None: not counted) of the stage in flight;
+# a ``stage`` (what it does, e.g. "COLMAP: mapping") starts a new stage
+Progress = Callable[[int, "int | None", "str | None"], None]
 
 
 @dataclass
@@ -161,8 +168,7 @@ class FrameReadings:
 
 def read_frames(
     source: FrameSource, calibrator, images: Path, *, baseline_m: float | None,
-    progress: Callable[[int, int | None], None] | None = None, stop=None, conf: dict | None = None,
-    rotate: int = 0,
+    progress: Progress | None = None, stop=None, conf: dict | None = None, rotate: int = 0,
 ) -> FrameReadings:  # fmt: skip
     """Write each frame of ``source`` into ``images/{left,right}/``, detect its features, and calibrate
     its pair as ``calibrate`` does: every pair of a sequence of up to ``max_pairs_calibrated``, else evenly
@@ -179,6 +185,8 @@ def read_frames(
     sizes = None
     total = source.count()
     stride = max(1, math.ceil(total / conf["max_pairs_calibrated"])) if total else 1
+    if progress is not None:
+        progress(0, total, "reading and calibrating frame pairs")
     for frame in source:
         if stop is not None and stop.requested:
             raise colmap.Cancelled()
@@ -239,6 +247,7 @@ def calibrate_frames(
     warnings: list[str],
     conf: dict | None = None,
     stop=None,
+    progress: Progress | None = None,
 ) -> SequenceResult:
     """Stages 2–4 on frames already written into ``workspace/images`` and read as pairs."""
     frames, readings, sizes = read.frames, read.readings, read.sizes
@@ -248,13 +257,17 @@ def calibrate_frames(
     starts, pair_focals, R0, T0 = _start(readings, sizes, pinhole)
     conf = {**default_conf, **(conf or {})}
     try:
-        model = colmap.reconstruct(workspace, starts, R0, T0, conf["colmap"], stop, read.features)
+        model = colmap.reconstruct(
+            workspace, starts, R0, T0, conf["colmap"], stop, read.features, progress=progress
+        )
     except CalibrationFailed as error:  # a static rig, or views that share nothing: the pairs alone
         notes.append(f"{error}; the calibration is the pairs' combined")
         return _pairs_only(
             frames, readings, sizes, starts, pair_focals, R0, T0, baseline_m, model_file, notes
         )
     timing["colmap"] = (time.perf_counter() - start) * 1e3
+    if progress is not None:
+        progress(0, None, "combining the frames' evidence")
     # the frames' own spread, in the reconstruction's own world (before it is aligned)
     rig_sigmas = rig_sigmas_deg(colmap.rig_sigmas(model), model.cameras, sizes, conf["evidence"])
     by_index = {f"{f.index:06d}.png": f for f in frames}
@@ -287,7 +300,7 @@ def calibrate_frames(
         notes.append(f"the mapping broke the sequence into {model.models} models: the largest is used")
     unregistered = len(frames) - len(registered)
     if unregistered:
-        notes.append(f"{unregistered} of {len(frames)} frames could not be registered")
+        notes.append(f"{unregistered} of {plural(len(frames), 'frame')} could not be registered")
     observable = all(f.observable for f in focals)
     if not observable:
         kept = (
@@ -444,7 +457,7 @@ def calibrate_sequence(
     baseline_m: float | None = None,
     pinhole: bool = False,
     conf: dict | None = None,
-    progress: Callable[[int, int | None], None] | None = None,
+    progress: Progress | None = None,
     workspace: str | Path | None = None,
     stop=None,
     rotate: int = 0,
@@ -458,18 +471,16 @@ def calibrate_sequence(
     frame or COLMAP stage in flight and returns None (nothing half done is returned).
     """
     temporary = workspace is None
-    folder = Path(tempfile.mkdtemp(prefix="stereogeo-sequence-")) if temporary else Path(workspace)
+    folder = Path(tempfile.mkdtemp(prefix="stereogeo-sequence-")) if temporary else _workspace(workspace)
     try:
         read = read_frames(
             source, calibrator, folder / "images", baseline_m=baseline_m, progress=progress, stop=stop,
             conf=conf, rotate=rotate,
         )  # fmt: skip
-        if progress is not None:
-            progress(len(read.frames), len(read.frames), "COLMAP: matching, mapping, adjusting")
         model_file = (calibrator.model_path.name, calibrator.network.model_sha256)
         result = calibrate_frames(
             read, folder, baseline_m=baseline_m, pinhole=pinhole, model_file=model_file,
-            warnings=list(source.warnings), conf=conf, stop=stop,
+            warnings=list(source.warnings), conf=conf, stop=stop, progress=progress,
         )  # fmt: skip
         if result is not None:
             result.calibration = with_rotation_noted(result.calibration, rotate)
@@ -479,6 +490,20 @@ def calibrate_sequence(
     finally:
         if temporary:
             shutil.rmtree(folder, ignore_errors=True)
+
+
+def _workspace(workspace: str | Path) -> Path:
+    """The folder the user gave for COLMAP's work, made if needed; one that cannot be is an input error."""
+    folder = Path(workspace)
+    if folder.exists() and not folder.is_dir():
+        raise StereoGeoError(f"--workspace {folder} is a file, not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StereoGeoError(f"cannot create the workspace {folder}: {exc.strerror or exc}") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise StereoGeoError(f"the workspace {folder} is not writable")
+    return folder
 
 
 def trajectory_tum(trajectory: list[tuple[float, np.ndarray]]) -> str:
@@ -494,14 +519,55 @@ def trajectory_tum(trajectory: list[tuple[float, np.ndarray]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_sequence(out_dir: str | Path, result: SequenceResult, formats=None) -> list[Path]:
+SEQUENCE_FILES = ("trajectory.txt", "sparse")  # written beside the calibration's files
+
+
+def check_output_folder(out_dir: str | Path, overwrite: bool = False) -> None:
+    """Refuse an output folder that holds anything (a rerun would mix two runs' files), unless
+    ``overwrite``; and even then one that holds files a sequence does not write (``--overwrite`` replaces
+    the whole folder, so it replaces only a folder of results). Called before the run and again before
+    writing. Raises :class:`StereoGeoError` (exit code 2)."""
+    from stereogeo_cli.io.writers import FORMAT_FILES
+
+    folder = Path(out_dir)
+    if folder.exists() and not folder.is_dir():
+        raise StereoGeoError(f"output folder {folder} is not a folder")
+    held = sorted(p.name + ("/" if p.is_dir() else "") for p in folder.iterdir()) if folder.is_dir() else []
+    if not held:
+        return
+    shown = ", ".join(held[:4]) + (", …" if len(held) > 4 else "")
+    if not overwrite:
+        raise StereoGeoError(
+            f"{folder} already holds {shown}: add --overwrite to replace the folder with this run's "
+            "results, or give a new folder"
+        )
+    ours = {name for names in FORMAT_FILES.values() for name in names} | set(SEQUENCE_FILES)
+    foreign = [name for name in held if name.rstrip("/") not in ours]
+    if foreign:
+        raise StereoGeoError(
+            f"{folder} holds {', '.join(foreign[:4])}{', …' if len(foreign) > 4 else ''}, which "
+            "calibrate-sequence does not write: --overwrite replaces a whole folder of results, so give "
+            "that folder or a new one"
+        )
+
+
+def write_sequence(out_dir: str | Path, result: SequenceResult, formats=None, *, overwrite: bool = False,
+                   stop=None) -> list[Path]:  # fmt: skip
     """Every file of ``calibrate -o`` for the rig (``formats``: all by default), ``trajectory.txt`` and the
-    COLMAP model in ``sparse/0/`` (where COLMAP made one), written together and atomically."""
-    from stereogeo_cli.io.atomic import write_files_atomically
+    COLMAP model in ``sparse/0/`` (where COLMAP made one), as the whole content of ``out_dir``: written
+    into a new folder that then takes its place in one step (:func:`check_output_folder` decides whether
+    an ``out_dir`` that holds files may be replaced). ``stop``: once it is requested before that step,
+    nothing is written and ``[]`` is returned."""
+    from stereogeo_cli.batch.interrupt import protected
+    from stereogeo_cli.io.atomic import replace_folder_atomically
     from stereogeo_cli.io.writers import DEFAULT_FORMATS, render_calibration
 
+    check_output_folder(out_dir, overwrite)
     files: dict[str, str | bytes] = dict(render_calibration(result.calibration, formats or DEFAULT_FORMATS))
     if result.reconstruction is not None:  # COLMAP made a model (else the pairs alone calibrated the rig)
         files["trajectory.txt"] = trajectory_tum(result.trajectory)
         files.update(colmap.model_files(result.reconstruction))
-    return write_files_atomically(out_dir, files)
+    with protected():  # a second signal waits until the folder is whole, or untouched
+        if stop is not None and stop.requested:
+            return []
+        return replace_folder_atomically(out_dir, files)

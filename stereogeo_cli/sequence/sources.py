@@ -51,8 +51,10 @@ import numpy as np
 from stereogeo_cli.batch.discovery import discover_pairs
 from stereogeo_cli.errors import StereoGeoError
 from stereogeo_cli.io.images import MIN_SIDE, _to_uint8, load_image
+from stereogeo_cli.io.text import plural
 
 FPS_SLACK = 0.05  # share of 1/fps by which kept frames may come early (camera timing jitter)
+STAMP_TOLERANCE_S = 0.01  # a bag's left and right stamps pair within this (cameras triggered together)
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 IMAGE_MSGTYPE = "sensor_msgs/msg/Image"
 COMPRESSED_MSGTYPE = "sensor_msgs/msg/CompressedImage"
@@ -144,14 +146,15 @@ def open_source(
     every: int = 1,
     fps: float | None = None,
     max_frames: int | None = None,
-    tolerance_s: float = 0.01,
+    tolerance_s: float | None = None,
 ) -> FrameSource:
     """The frames of a folder or bag (``path``), two videos (``video``) or a side-by-side video (``sbs``).
 
     ``left_topic``/``right_topic``: a bag's image topics (required for bags, refused otherwise).
     ``every``: keep every N-th frame; ``fps``: frames per second to keep at most (videos, bags) or the
     folder's frame rate (folders); ``max_frames``: at most this many pairs; ``tolerance_s``: largest stamp
-    difference (s) of a bag's left and right messages that still pair. Rules in the module docstring.
+    difference (s) of a bag's left and right messages that still pair (bags only; default
+    :data:`STAMP_TOLERANCE_S`). Rules in the module docstring.
 
     Checks the input and reads the first pair before returning; raises :class:`StereoGeoError` (exit code 2).
     """
@@ -170,8 +173,8 @@ def open_source(
         raise StereoGeoError(f"--fps must be a positive number of frames per second, got {fps}")
     if max_frames is not None and max_frames < 1:
         raise StereoGeoError(f"--max-frames must be at least 1, got {max_frames}")
-    if not (math.isfinite(tolerance_s) and tolerance_s >= 0):
-        raise StereoGeoError(f"the stamp tolerance must be 0 s or more, got {tolerance_s}")
+    if tolerance_s is not None and not (math.isfinite(tolerance_s) and tolerance_s >= 0):
+        raise StereoGeoError(f"--stamp-tolerance must be 0 s or more, got {tolerance_s}")
 
     bag = None
     if path is not None:
@@ -186,6 +189,10 @@ def open_source(
             )
     if bag is None and (left_topic is not None or right_topic is not None):
         raise StereoGeoError("--left-topic and --right-topic are for bags only")
+    if bag is None and tolerance_s is not None:
+        raise StereoGeoError(
+            "--stamp-tolerance is for bags only: folders and videos pair their frames by name or number"
+        )
     if bag is None and path is not None:
         return FolderSource(path, every=every, fps=fps, max_frames=max_frames)
     if every > 1 and fps is not None:
@@ -199,7 +206,7 @@ def open_source(
             every=every,
             fps=fps,
             max_frames=max_frames,
-            tolerance_s=tolerance_s,
+            tolerance_s=STAMP_TOLERANCE_S if tolerance_s is None else tolerance_s,
         )
     if video is not None:
         if isinstance(video, str | os.PathLike) or len(video) != 2:
@@ -291,7 +298,7 @@ class FolderSource(FrameSource):
         entries = discover_pairs(folder)
         self.warnings += [f"{folder}: {e.problem}; left out" for e in entries if e.problem is not None]
         pairs = [e for e in entries if e.problem is None]
-        self.description = f"folder {folder} ({len(pairs)} pair{'s' * (len(pairs) != 1)})"
+        self.description = f"folder {folder} ({plural(len(pairs), 'pair')})"
         selector = _Selector(every, None, max_frames)
         # (ordinal in the folder, entry): the ordinal gives the time, so that subsampling keeps times true
         self._pairs = [(k, e) for k, e in enumerate(pairs) if selector.keep(k, k)]
@@ -417,7 +424,7 @@ class VideoSource(FrameSource):
         if not self.sbs:
             if all(lengths) and lengths[0] != lengths[1]:
                 self.warnings.append(
-                    f"{paths[0]} has {lengths[0]} frames and {paths[1]} {lengths[1]}: "
+                    f"{paths[0]} has {plural(lengths[0], 'frame')} and {paths[1]} {lengths[1]}: "
                     "the pairs end with the shorter video"
                 )
             if all(rates) and abs(rates[0] - rates[1]) > 1e-3 * rates[0]:
@@ -427,6 +434,7 @@ class VideoSource(FrameSource):
                 )
         if self._fps_nominal is None:
             self.warnings.append(f"{paths[0]} states no frame rate; frame times are frame numbers")
+        self._lengths = lengths
         self._length = None if None in lengths else min(lengths)
 
     def count(self) -> int | None:
@@ -439,6 +447,19 @@ class VideoSource(FrameSource):
             return None
         selector = _Selector(self.every, _min_gap(self.fps), self.max_frames)
         return sum(selector.keep(k, k / self._fps_nominal) for k in range(self._length))
+
+    def _note_short(self, frames: int, grabbed: list[bool]) -> None:
+        """Warn where a video (one whose frame ``frames`` could not be ``grabbed``) ends before the frame
+        count its header declares: a file cut short (a recording stopped uncleanly, a partial copy), so
+        the sequence is shorter than the file says."""
+        for path, declared, more in zip(self.paths, self._lengths, grabbed, strict=True):
+            if not more and declared is not None and frames < declared:
+                warning = (
+                    f"{path} ends after {plural(frames, 'frame')} though its header declares {declared}: "
+                    "the file may be truncated, and the sequence is that much shorter"
+                )
+                if warning not in self.warnings:
+                    self.warnings.append(warning)
 
     def __iter__(self) -> Iterator[FramePair]:
         captures = [_open_capture(p) for p in self.paths]
@@ -458,7 +479,9 @@ class VideoSource(FrameSource):
         number = 0
         while not selector.full:
             # grab() without retrieve() skips the colour conversion of frames that are not kept
-            if not all([capture.grab() for capture in captures]):
+            grabbed = [capture.grab() for capture in captures]
+            if not all(grabbed):
+                self._note_short(number, grabbed)
                 return
             time = clock(captures[0], number)
             if selector.keep(number, time):
@@ -521,7 +544,7 @@ class BagSource(FrameSource):
         every: int = 1,
         fps: float | None = None,
         max_frames: int | None = None,
-        tolerance_s: float = 0.01,
+        tolerance_s: float = STAMP_TOLERANCE_S,
     ):
         super().__init__()
         self.given, self.bag = given, bag
@@ -556,17 +579,18 @@ class BagSource(FrameSource):
         if not pairs:
             raise StereoGeoError(
                 f"{given}: no left message of {left_topic} has a right message of {right_topic} within "
-                f"{tolerance_s:g} s ({_offset_hint(messages[0], messages[1])})"
+                f"{tolerance_s:g} s ({_offset_hint(messages[0], messages[1])}); --stamp-tolerance widens it"
             )
         unpaired = len(messages[0]) - len(pairs), len(messages[1]) - len(pairs)
         if any(unpaired):
             self.warnings.append(
                 f"{given}: {unpaired[0]} of {len(messages[0])} left and {unpaired[1]} of {len(messages[1])} "
-                f"right messages have no partner within {tolerance_s:g} s; left out"
+                f"right messages have no partner within {tolerance_s:g} s; left out (--stamp-tolerance "
+                "widens it)"
             )
         selector = _Selector(every, _min_gap(fps), max_frames)
         self._pairs = [p for k, p in enumerate(pairs) if selector.keep(k, p[0].stamp_ns / 1e9)]
-        self.description += f", {len(pairs)} pairs"
+        self.description += f", {plural(len(pairs), 'pair')}"
         self._check_frames()
         frames = iter(self)
         next(frames, None)  # decode the first pair now: a bad format fails before a long run

@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 from stereogeo_cli.errors import StereoGeoError
+from stereogeo_cli.io.text import plural
 from stereogeo_cli.synth.config import SynthConfig
 
 
@@ -145,7 +146,7 @@ def run_make_data(
 
         summary = make_dataset(Path(out), count, seed, config, workers=workers, progress=progress)
         print(
-            f"wrote {summary.written} pairs to {summary.folder} ({summary.skipped} already there)",
+            f"wrote {plural(summary.written, 'pair')} to {summary.folder} ({summary.skipped} already there)",
             file=sys.stderr,
         )
     if preview is not None:
@@ -182,7 +183,7 @@ def _run_sequence(
     config = build_config(**resolved).replace(portrait_share=0.0, panorama_share=0.0)
     summary = make_sequence(Path(out), motion, count, seed, config, progress=progress)
     print(
-        f"wrote a {summary.motion} sequence of {summary.frames} frame pairs ({summary.scene} scene) "
-        f"to {summary.folder}",
+        f"wrote a {summary.motion} sequence of {plural(summary.frames, 'frame pair')} ({summary.scene} "
+        f"scene) to {summary.folder}",
         file=sys.stderr,
     )

@@ -31,6 +31,7 @@ from stereogeo_cli.geometry import (
     rotation_angle,
     rotation_from_axis_angle,
 )
+from stereogeo_cli.io.text import plural
 from stereogeo_cli.synth.config import SynthConfig
 from stereogeo_cli.synth.rigs import WORLD_UP, Camera, Rig, RigSample, sample_image_size, sample_relative_pose
 
@@ -639,9 +640,13 @@ def read_sequence_ground_truth(folder: Path | str) -> dict:
     K_r, dist_r, size_r = camera("right")
     poses = None if calib.get("gt_poses") is None else np.asarray(calib["gt_poses"], float).reshape(-1, 4, 4)
     timestamps = array("timestamps")
-    for what, n in (("right frames", right), ("timestamps", timestamps), ("gt_poses", poses)):
+    for what, whats, n in (
+        ("right frame", "right frames", right), ("timestamp", "timestamps", timestamps),
+        ("pose in gt_poses", "poses in gt_poses", poses),
+    ):  # fmt: skip
         if n is not None and len(n) != len(left):
-            raise StereoGeoError(f"{folder}: {len(left)} left frames but {len(n)} {what}")
+            counts = f"{plural(len(left), 'left frame')} but {plural(len(n), what, whats)}"
+            raise StereoGeoError(f"{folder}: {counts}")
     up = array("gravity_up_world", 3)
     R = array("R", (3, 3))
     gravity_left = gravity_right = None
