@@ -112,106 +112,126 @@ def fail(error: StereoGeoError) -> typer.Exit:
     return typer.Exit(code=error.exit_code)
 
 
+# the options of make-data
+_MakeDataOut = Annotated[
+    Path | None,
+    typer.Argument(
+        help="Folder for the dataset (left/, right/, calib.jsonl; resumed if it exists), "
+        "or for the sequence (left/, right/, calib.json)."
+    ),
+]
+_MakeDataCount = Annotated[
+    int | None,
+    typer.Option(
+        "--count", "-n", help="Number of stereo pairs (default 1000), or frames of a --sequence (50)."
+    ),
+]
+_MakeDataSequence = Annotated[
+    str | None,
+    typer.Option(
+        help="Render one sequence of a stereo rig moving through one scene instead of independent pairs: "
+        "straight, turning, handheld or static (per-frame ground truth in calib.json)."
+    ),
+]
+_MakeDataSize = Annotated[
+    int | None, typer.Option(help="Short side of the images in pixels (default 240; sequences 480).")
+]
+_MakeDataAspects = Annotated[
+    str | None,
+    typer.Option(
+        help="Comma-separated aspect ratios (width:height) to draw image sizes from "
+        "(default 4:3,16:9,1:1,3:2; sequences 4:3)."
+    ),
+]
+_MakeDataVfovMin = Annotated[
+    float | None,
+    typer.Option(help="Smallest vertical field of view, in degrees (default 20; sequences 45)."),
+]
+_MakeDataVfovMax = Annotated[
+    float | None,
+    typer.Option(help="Largest vertical field of view, in degrees (default 105; sequences 80)."),
+]
+_MakeDataBaselineMin = Annotated[
+    float | None, typer.Option(help="Shortest baseline, in metres (default 0.05; sequences 0.1).")
+]
+_MakeDataBaselineMax = Annotated[
+    float | None, typer.Option(help="Longest baseline, in metres (default 0.8; sequences 0.5).")
+]
+_MakeDataMaxAngle = Annotated[
+    float | None, typer.Option(help="Largest rig roll and pitch, in degrees (default 45; sequences 5).")
+]
+_MakeDataCloseShare = Annotated[
+    float, typer.Option(help="Share of indoor scenes that are close range (a desk seen from 0.35–1.5 m).")
+]
+_MakeDataPanoramaShare = Annotated[
+    float, typer.Option(help="Share of pairs that are two crops of one panorama (needs --panoramas).")
+]
+_MakeDataPanoramaMaxUpsampling = Annotated[
+    float,
+    typer.Option(help="Crops of a panorama magnify it at most this much (narrower crops are widened)."),
+]
+_MakeDataAugment = Annotated[
+    float | None,
+    typer.Option(help="Strength of noise, blur and exposure changes (default 1; sequences 0.5; 0: none)."),
+]
+_MakeDataDepth = Annotated[
+    bool, typer.Option("--depth", help="Also write z-depth maps in metres (depth/left|right/*.npy).")
+]
+_MakeDataTextures = Annotated[
+    Path | None, typer.Option(help="Folder of photos to use as textures, besides the built-in ones.")
+]
+_MakeDataPanoramas = Annotated[
+    Path | None, typer.Option(help="Folder of equirectangular panoramas for skies, windows and crops.")
+]
+_MakeDataPreview = Annotated[
+    Path | None, typer.Option(help="Write a contact sheet of 16 random pairs to this PNG file.")
+]
+_MakeDataPhotos = Annotated[
+    Path | None,
+    typer.Option(
+        help="Instead of rendering, write training pairs from single real photographs: a folder with a "
+        "labels.jsonl (stereogeo evaluate's photo layout); each photo at three centred zooms, sharp "
+        "and softened."
+    ),
+]
+_MakeDataPhotoSplit = Annotated[
+    str,
+    typer.Option(help="With --photos: the half of benchmarks/real_photos_split.json to use (train, all)."),
+]
+_MakeDataProgress = Annotated[
+    bool | None,
+    typer.Option("--progress/--no-progress", help="Show a progress bar (default: if a terminal)."),
+]
+
+
 @app.command("make-data")
 def make_data(
-    out: Annotated[
-        Path | None,
-        typer.Argument(
-            help="Folder for the dataset (left/, right/, calib.jsonl; resumed if it exists), "
-            "or for the sequence (left/, right/, calib.json)."
-        ),
-    ] = None,
+    out: _MakeDataOut = None,
     *,
-    count: Annotated[
-        int | None,
-        typer.Option(
-            "--count", "-n", help="Number of stereo pairs (default 1000), or frames of a --sequence (50)."
-        ),
-    ] = None,
+    count: _MakeDataCount = None,
     seed: Annotated[int, typer.Option(help="Seed: the same seed and options give the same bytes.")] = 0,
-    sequence: Annotated[
-        str | None,
-        typer.Option(
-            help="Render one sequence of a stereo rig moving through one scene instead of independent pairs: "
-            "straight, turning, handheld or static (per-frame ground truth in calib.json)."
-        ),
-    ] = None,
+    sequence: _MakeDataSequence = None,
     workers: Annotated[int, typer.Option(help="Rendering processes to run in parallel.")] = 1,
-    size: Annotated[
-        int | None, typer.Option(help="Short side of the images in pixels (default 240; sequences 480).")
-    ] = None,
-    aspects: Annotated[
-        str | None,
-        typer.Option(
-            help="Comma-separated aspect ratios (width:height) to draw image sizes from "
-            "(default 4:3,16:9,1:1,3:2; sequences 4:3)."
-        ),
-    ] = None,
+    size: _MakeDataSize = None,
+    aspects: _MakeDataAspects = None,
     portrait_share: Annotated[float, typer.Option(help="Share of pairs with portrait images.")] = 0.2,
-    vfov_min: Annotated[
-        float | None,
-        typer.Option(help="Smallest vertical field of view, in degrees (default 20; sequences 45)."),
-    ] = None,
-    vfov_max: Annotated[
-        float | None,
-        typer.Option(help="Largest vertical field of view, in degrees (default 105; sequences 80)."),
-    ] = None,
-    baseline_min: Annotated[
-        float | None, typer.Option(help="Shortest baseline, in metres (default 0.05; sequences 0.1).")
-    ] = None,
-    baseline_max: Annotated[
-        float | None, typer.Option(help="Longest baseline, in metres (default 0.8; sequences 0.5).")
-    ] = None,
-    max_angle: Annotated[
-        float | None, typer.Option(help="Largest rig roll and pitch, in degrees (default 45; sequences 5).")
-    ] = None,
+    vfov_min: _MakeDataVfovMin = None,
+    vfov_max: _MakeDataVfovMax = None,
+    baseline_min: _MakeDataBaselineMin = None,
+    baseline_max: _MakeDataBaselineMax = None,
+    max_angle: _MakeDataMaxAngle = None,
     outdoor_share: Annotated[float, typer.Option(help="Share of rendered scenes that are outdoor.")] = 0.5,
-    close_share: Annotated[
-        float, typer.Option(help="Share of indoor scenes that are close range (a desk seen from 0.35–1.5 m).")
-    ] = 0.25,
-    panorama_share: Annotated[
-        float, typer.Option(help="Share of pairs that are two crops of one panorama (needs --panoramas).")
-    ] = 0.2,
-    panorama_max_upsampling: Annotated[
-        float,
-        typer.Option(help="Crops of a panorama magnify it at most this much (narrower crops are widened)."),
-    ] = 1.5,
-    augment: Annotated[
-        float | None,
-        typer.Option(
-            help="Strength of noise, blur and exposure changes (default 1; sequences 0.5; 0: none)."
-        ),
-    ] = None,
-    depth: Annotated[
-        bool, typer.Option("--depth", help="Also write z-depth maps in metres (depth/left|right/*.npy).")
-    ] = False,
-    textures: Annotated[
-        Path | None, typer.Option(help="Folder of photos to use as textures, besides the built-in ones.")
-    ] = None,
-    panoramas: Annotated[
-        Path | None, typer.Option(help="Folder of equirectangular panoramas for skies, windows and crops.")
-    ] = None,
-    preview: Annotated[
-        Path | None, typer.Option(help="Write a contact sheet of 16 random pairs to this PNG file.")
-    ] = None,
-    photos: Annotated[
-        Path | None,
-        typer.Option(
-            help="Instead of rendering, write training pairs from single real photographs: a folder with a "
-            "labels.jsonl (stereogeo evaluate's photo layout); each photo at three centred zooms, sharp "
-            "and softened."
-        ),
-    ] = None,
-    photo_split: Annotated[
-        str,
-        typer.Option(
-            help="With --photos: the half of benchmarks/real_photos_split.json to use (train, all)."
-        ),
-    ] = "train",
-    progress: Annotated[
-        bool | None,
-        typer.Option("--progress/--no-progress", help="Show a progress bar (default: if a terminal)."),
-    ] = None,
+    close_share: _MakeDataCloseShare = 0.25,
+    panorama_share: _MakeDataPanoramaShare = 0.2,
+    panorama_max_upsampling: _MakeDataPanoramaMaxUpsampling = 1.5,
+    augment: _MakeDataAugment = None,
+    depth: _MakeDataDepth = False,
+    textures: _MakeDataTextures = None,
+    panoramas: _MakeDataPanoramas = None,
+    preview: _MakeDataPreview = None,
+    photos: _MakeDataPhotos = None,
+    photo_split: _MakeDataPhotoSplit = "train",
+    progress: _MakeDataProgress = None,
 ) -> None:
     """Render a synthetic stereo dataset with exact ground truth (K, R, T, gravity per camera), or with
     --sequence one sequence of a moving rig (K, R, T and the pose of every frame)."""
@@ -415,53 +435,65 @@ ExifFlag = Annotated[
 ]  # calibrate and batch-calibrate
 
 
+# the options of calibrate
+_CalibrateOutput = Annotated[
+    Path | None, typer.Option("--output", "-o", help="Folder to write the calibration files into.")
+]
+_CalibrateFormats = Annotated[
+    str,
+    typer.Option(
+        "--format",
+        help="Comma-separated output formats to write: opencv, ros, kalibr, colmap, json.",
+    ),
+]
+_CalibrateJsonOut = Annotated[
+    bool, typer.Option("--json", help="Print the JSON report on stdout, and nothing else there.")
+]
+_CalibratePreview = Annotated[
+    Path | None,
+    typer.Option(
+        help="Write the rectified pair side by side, with rows every 32 px and the horizons, to this PNG."
+    ),
+]
+_CalibrateBaseline = Annotated[
+    float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
+]
+_CalibrateFocalLeft = Annotated[
+    float | None, typer.Option(help="The left camera's focal length in pixels, if known.")
+]
+_CalibrateFocalRight = Annotated[
+    float | None, typer.Option(help="The right camera's focal length in pixels, if known.")
+]
+_CalibrateFocalSigma = Annotated[
+    float | None,
+    typer.Option(
+        help="Relative 1-sigma of --focal-left/--focal-right (e.g. 0.05 for a datasheet's lens): they "
+        "become priors combined with the network's reading instead of being held fixed."
+    ),
+]
+_CalibrateModel = Annotated[
+    Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
+]
+
+
 @app.command()
 def calibrate(
     left: Annotated[Path, typer.Argument(help="The left image (any format OpenCV reads).")],
     right: Annotated[Path, typer.Argument(help="The right image.")],
     *,
-    output: Annotated[
-        Path | None, typer.Option("--output", "-o", help="Folder to write the calibration files into.")
-    ] = None,
-    formats: Annotated[
-        str,
-        typer.Option(
-            "--format",
-            help="Comma-separated output formats to write: opencv, ros, kalibr, colmap, json.",
-        ),
-    ] = "opencv,ros,kalibr,colmap,json",
-    json_out: Annotated[
-        bool, typer.Option("--json", help="Print the JSON report on stdout, and nothing else there.")
-    ] = False,
-    preview: Annotated[
-        Path | None,
-        typer.Option(
-            help="Write the rectified pair side by side, with rows every 32 px and the horizons, to this PNG."
-        ),
-    ] = None,
-    baseline: Annotated[
-        float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
-    ] = None,
-    focal_left: Annotated[
-        float | None, typer.Option(help="The left camera's focal length in pixels, if known.")
-    ] = None,
-    focal_right: Annotated[
-        float | None, typer.Option(help="The right camera's focal length in pixels, if known.")
-    ] = None,
-    focal_sigma: Annotated[
-        float | None,
-        typer.Option(
-            help="Relative 1-sigma of --focal-left/--focal-right (e.g. 0.05 for a datasheet's lens): they "
-            "become priors combined with the network's reading instead of being held fixed."
-        ),
-    ] = None,
+    output: _CalibrateOutput = None,
+    formats: _CalibrateFormats = "opencv,ros,kalibr,colmap,json",
+    json_out: _CalibrateJsonOut = False,
+    preview: _CalibratePreview = None,
+    baseline: _CalibrateBaseline = None,
+    focal_left: _CalibrateFocalLeft = None,
+    focal_right: _CalibrateFocalRight = None,
+    focal_sigma: _CalibrateFocalSigma = None,
     pinhole: PinholeFlag = False,
     lines: LinesFlag = True,
     exif: ExifFlag = True,
     rotate: RotateOption = 0,
-    model: Annotated[
-        Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
-    ] = None,
+    model: _CalibrateModel = None,
     threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core but one).")] = 0,
 ) -> None:
     """Calibrate a stereo camera from one image pair: focal lengths, gravity (roll, pitch), R and T."""
@@ -527,66 +559,80 @@ def _print_written(console, written: list[Path]) -> None:
         )
 
 
+# the options of batch-calibrate
+_BatchFolder = Annotated[
+    Path,
+    typer.Argument(
+        help="Folder of stereo pairs: left/ + right/, cam0/ + cam1/, or *_left/*_right, *_L/*_R files."
+    ),
+]
+_BatchOutput = Annotated[
+    Path,
+    typer.Option(
+        "--output", "-o", help="Folder for the results: <pair>/ per pair, summary.csv and summary.json."
+    ),
+]
+_BatchFormats = Annotated[
+    str,
+    typer.Option(
+        "--format",
+        help="Comma-separated output formats to write: opencv, ros, kalibr, colmap, json.",
+    ),
+]
+_BatchBaseline = Annotated[
+    float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
+]
+_BatchModel = Annotated[
+    Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
+]
+_BatchThreads = Annotated[
+    int, typer.Option(help="Threads for the network in all (0: one per core), shared by the workers.")
+]
+_BatchSameRig = Annotated[
+    bool,
+    typer.Option(
+        "--same-rig", help="All pairs come from one rig: also write one joint calibration to OUT/rig/."
+    ),
+]
+_BatchShard = Annotated[
+    str | None,
+    typer.Option(help="Only shard i of n (1-based, e.g. 2/8): every n-th pair, for cluster job arrays."),
+]
+_BatchJsonOut = Annotated[
+    bool, typer.Option("--json", help="Print the summary as JSON on stdout, and nothing else there.")
+]
+_BatchResume = Annotated[
+    bool,
+    typer.Option(
+        "--resume",
+        help="Keep the pairs OUT already holds, calibrated with the same options, model and images (e.g. "
+        "by a run that was interrupted), and calibrate the others; the summary lists all.",
+    ),
+]
+_BatchOverwrite = Annotated[
+    bool, typer.Option("--overwrite", help="Replace the results OUT already holds (else they are kept).")
+]
+
+
 @app.command("batch-calibrate")
 def batch_calibrate(
-    folder: Annotated[
-        Path,
-        typer.Argument(
-            help="Folder of stereo pairs: left/ + right/, cam0/ + cam1/, or *_left/*_right, *_L/*_R files."
-        ),
-    ],
+    folder: _BatchFolder,
     *,
-    output: Annotated[
-        Path,
-        typer.Option(
-            "--output", "-o", help="Folder for the results: <pair>/ per pair, summary.csv and summary.json."
-        ),
-    ],
-    formats: Annotated[
-        str,
-        typer.Option(
-            "--format",
-            help="Comma-separated output formats to write: opencv, ros, kalibr, colmap, json.",
-        ),
-    ] = "opencv,ros,kalibr,colmap,json",
-    baseline: Annotated[
-        float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
-    ] = None,
+    output: _BatchOutput,
+    formats: _BatchFormats = "opencv,ros,kalibr,colmap,json",
+    baseline: _BatchBaseline = None,
     pinhole: PinholeFlag = False,
     lines: LinesFlag = True,
     exif: ExifFlag = True,
     rotate: RotateOption = 0,
-    model: Annotated[
-        Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
-    ] = None,
-    threads: Annotated[
-        int, typer.Option(help="Threads for the network in all (0: one per core), shared by the workers.")
-    ] = 0,
+    model: _BatchModel = None,
+    threads: _BatchThreads = 0,
     workers: Annotated[int, typer.Option(help="Pairs calibrated in parallel, one process each.")] = 1,
-    same_rig: Annotated[
-        bool,
-        typer.Option(
-            "--same-rig", help="All pairs come from one rig: also write one joint calibration to OUT/rig/."
-        ),
-    ] = False,
-    shard: Annotated[
-        str | None,
-        typer.Option(help="Only shard i of n (1-based, e.g. 2/8): every n-th pair, for cluster job arrays."),
-    ] = None,
-    json_out: Annotated[
-        bool, typer.Option("--json", help="Print the summary as JSON on stdout, and nothing else there.")
-    ] = False,
-    resume: Annotated[
-        bool,
-        typer.Option(
-            "--resume",
-            help="Keep the pairs OUT already holds, calibrated with the same options, model and images (e.g. "
-            "by a run that was interrupted), and calibrate the others; the summary lists all.",
-        ),
-    ] = False,
-    overwrite: Annotated[
-        bool, typer.Option("--overwrite", help="Replace the results OUT already holds (else they are kept).")
-    ] = False,
+    same_rig: _BatchSameRig = False,
+    shard: _BatchShard = None,
+    json_out: _BatchJsonOut = False,
+    resume: _BatchResume = False,
+    overwrite: _BatchOverwrite = False,
 ) -> None:
     """Calibrate every stereo pair of a folder with one network session; exit code 4 if any pair failed.
 
@@ -597,9 +643,10 @@ def batch_calibrate(
     if threads < 0 or workers < 1:
         raise StereoGeoError("--threads must be 0 or more and --workers 1 or more")
     _check_rotate(rotate)
-    from stereogeo_cli.batch import parse_shard, run_batch
-    from stereogeo_cli.batch.interrupt import interruptible
+    from stereogeo_cli.batch import run_batch
+    from stereogeo_cli.io.pairs import parse_shard
     from stereogeo_cli.io.text import plural
+    from stereogeo_cli.jobs.interrupt import interruptible
 
     names, shard_spec = _formats(formats), parse_shard(shard) if shard is not None else None
     _check_output_folder(output)
@@ -659,96 +706,114 @@ def _pose_sigmas(text: str) -> dict[str, float]:
     }
 
 
+# the options of calibrate-sequence
+_SequenceSource = Annotated[
+    Path | None,
+    typer.Argument(
+        metavar="SOURCE",
+        help="A folder of frame pairs in time order (the layouts batch-calibrate reads), or a ROS 1 "
+        "bag (.bag) or ROS 2 bag (its folder) with --left-topic and --right-topic.",
+    ),
+]
+_SequenceOutput = Annotated[
+    Path | None,
+    typer.Option(
+        "--output", "-o", help="Folder for the rig's calibration files, trajectory.txt and sparse/."
+    ),
+]
+_SequenceVideo = Annotated[
+    tuple[Path, Path] | None,
+    typer.Option(help="Two videos, the left camera's and the right camera's (frames paired by number)."),
+]
+_SequenceSbs = Annotated[
+    Path | None, typer.Option(help="One side-by-side video: the left image in the left half.")
+]
+_SequenceFps = Annotated[
+    float | None,
+    typer.Option(
+        help="Videos and bags: keep frames at most this many per second; a folder: its frame rate "
+        "(the frames' times)."
+    ),
+]
+_SequenceFormats = Annotated[
+    str,
+    typer.Option(
+        "--format",
+        help="Comma-separated calibration formats to write: opencv, ros, kalibr, colmap, json "
+        "(trajectory.txt and sparse/ are always written).",
+    ),
+]
+_SequenceOverwrite = Annotated[
+    bool,
+    typer.Option(
+        "--overwrite",
+        help="Replace an output folder that holds an earlier run's results, in one step (else it is "
+        "refused).",
+    ),
+]
+_SequenceJsonOut = Annotated[
+    bool, typer.Option("--json", help="Print the JSON report on stdout, and nothing else there.")
+]
+_SequenceBaseline = Annotated[
+    float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the metric scale.")
+]
+_SequenceStampTolerance = Annotated[
+    float | None,
+    typer.Option(
+        help="Bags: the largest difference in seconds between a left and a right image's stamps that "
+        "still pairs them (default 0.01; free-running cameras need more)."
+    ),
+]
+_SequenceWorkspace = Annotated[
+    Path | None,
+    typer.Option(help="Keep COLMAP's images and database in this folder (default: a temporary one)."),
+]
+_SequenceModel = Annotated[
+    Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
+]
+_SequenceProgress = Annotated[
+    bool,
+    typer.Option(
+        "--progress/--no-progress",
+        help="Show each stage on stderr: a live line on a terminal, else a log line as each ends.",
+    ),
+]
+
+
 @app.command("calibrate-sequence")
 def calibrate_sequence(
-    source: Annotated[
-        Path | None,
-        typer.Argument(
-            help="A folder of frame pairs in time order (the layouts batch-calibrate reads), or a ROS 1 "
-            "bag (.bag) or ROS 2 bag (its folder) with --left-topic and --right-topic."
-        ),
-    ] = None,
+    source: _SequenceSource = None,
     *,
-    output: Annotated[
-        Path | None,
-        typer.Option(
-            "--output", "-o", help="Folder for the rig's calibration files, trajectory.txt and sparse/."
-        ),
-    ] = None,
-    video: Annotated[
-        tuple[Path, Path] | None,
-        typer.Option(help="Two videos, the left camera's and the right camera's (frames paired by number)."),
-    ] = None,
-    sbs: Annotated[
-        Path | None, typer.Option(help="One side-by-side video: the left image in the left half.")
-    ] = None,
+    output: _SequenceOutput = None,
+    video: _SequenceVideo = None,
+    sbs: _SequenceSbs = None,
     left_topic: Annotated[str | None, typer.Option(help="The bag's left image topic.")] = None,
     right_topic: Annotated[str | None, typer.Option(help="The bag's right image topic.")] = None,
     every: Annotated[int, typer.Option(help="Keep every Nth frame pair.")] = 1,
-    fps: Annotated[
-        float | None,
-        typer.Option(
-            help="Videos and bags: keep frames at most this many per second; a folder: its frame rate "
-            "(the frames' times)."
-        ),
-    ] = None,
+    fps: _SequenceFps = None,
     max_frames: Annotated[int | None, typer.Option(help="Use at most this many frame pairs.")] = None,
-    formats: Annotated[
-        str,
-        typer.Option(
-            "--format",
-            help="Comma-separated calibration formats to write: opencv, ros, kalibr, colmap, json "
-            "(trajectory.txt and sparse/ are always written).",
-        ),
-    ] = "opencv,ros,kalibr,colmap,json",
-    overwrite: Annotated[
-        bool,
-        typer.Option(
-            "--overwrite",
-            help="Replace an output folder that holds an earlier run's results, in one step (else it is "
-            "refused).",
-        ),
-    ] = False,
-    json_out: Annotated[
-        bool, typer.Option("--json", help="Print the JSON report on stdout, and nothing else there.")
-    ] = False,
-    baseline: Annotated[
-        float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the metric scale.")
-    ] = None,
+    formats: _SequenceFormats = "opencv,ros,kalibr,colmap,json",
+    overwrite: _SequenceOverwrite = False,
+    json_out: _SequenceJsonOut = False,
+    baseline: _SequenceBaseline = None,
     pinhole: PinholeFlag = False,
     rotate: RotateOption = 0,
-    stamp_tolerance: Annotated[
-        float | None,
-        typer.Option(
-            help="Bags: the largest difference in seconds between a left and a right image's stamps that "
-            "still pairs them (default 0.01; free-running cameras need more)."
-        ),
-    ] = None,
-    workspace: Annotated[
-        Path | None,
-        typer.Option(help="Keep COLMAP's images and database in this folder (default: a temporary one)."),
-    ] = None,
-    model: Annotated[
-        Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
-    ] = None,
+    stamp_tolerance: _SequenceStampTolerance = None,
+    workspace: _SequenceWorkspace = None,
+    model: _SequenceModel = None,
     threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core but one).")] = 0,
-    progress: Annotated[
-        bool,
-        typer.Option(
-            "--progress/--no-progress",
-            help="Show each stage on stderr: a live line on a terminal, else a log line as each ends.",
-        ),
-    ] = True,
+    progress: _SequenceProgress = True,
 ) -> None:
     """Calibrate a stereo rig from a sequence of its frame pairs (a drive, a robot's run, a hand-held
     sweep): COLMAP's bundle adjustment over the frames fixes the focal lengths where the rig turns.
 
     SIGINT or SIGTERM stops the run after the stage in flight: nothing is written (exit code 130, or 143)."""
-    from stereogeo_cli.batch.interrupt import Interrupted, interruptible
+    from stereogeo_cli.jobs.interrupt import Interrupted, interruptible
+    from stereogeo_cli.jobs.progress import StageProgress
 
     # the handlers are in place from the start, so that a signal at any moment ends the run the same way
     notice = "{name}: stopping after the stage in flight, nothing is written; {name} again to stop at once"
-    stage = _StageProgress("off" if not progress else "bar" if sys.stderr.isatty() else "log")
+    stage = StageProgress("off" if not progress else "bar" if sys.stderr.isatty() else "log")
     with interruptible(notice=notice if sys.stderr.isatty() else None) as stop:
         try:
             with stage:
@@ -784,7 +849,7 @@ def _ignore_signals_from_now() -> None:
     process with no word and no exit code)."""
     import signal
 
-    from stereogeo_cli.batch.interrupt import SIGNALS
+    from stereogeo_cli.jobs.interrupt import SIGNALS
 
     for s in SIGNALS:
         signal.signal(s, signal.SIG_IGN)
@@ -835,78 +900,6 @@ def _run_sequence(stop, stage, source, *, output, video, sbs, left_topic, right_
     return write_sequence(output, result, names, overwrite=overwrite, stop=stop), result
 
 
-class _StageProgress:
-    """A long command's stages on stderr, called as ``progress(done, total, stage)`` (a new ``stage``
-    starts a stage). ``mode``: "bar", a live line per stage on a terminal (what it does, a bar and the count
-    where they are known, the time spent and, where counted, left), each left standing when it ends; "log",
-    one plain line per stage as it ends (what it did, its count, the time spent); "off": nothing."""
-
-    def __init__(self, mode: str):
-        self.mode = mode
-        self._bar = self._task = self._stage = None
-        self._done, self._total, self._start = 0, None, 0.0
-
-    def __enter__(self):
-        if self.mode == "bar":
-            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-            from rich.table import Column
-
-            self._bar = Progress(
-                # the stage's name cut short before the bar, its count and its times are
-                TextColumn("{task.description}", table_column=Column(max_width=36, no_wrap=True,
-                                                                     overflow="ellipsis")),
-                BarColumn(bar_width=20), TextColumn("{task.fields[count]}"), TimeElapsedColumn(),
-                TimeRemainingColumn(),
-                console=_stderr_console(), transient=False,
-            )  # fmt: skip
-            self._bar.start()
-        return self
-
-    def __call__(self, done: int, total: int | None, stage: str | None = None) -> None:
-        import time
-
-        if self.mode == "off":
-            return
-        if stage is not None and stage != self._stage:
-            self._end()
-            self._stage, self._start = stage, time.perf_counter()
-            if self._bar is not None:
-                self._task = self._bar.add_task(stage, total=total, count="")
-        self._done, self._total = done, total
-        if self._bar is not None and self._task is not None:
-            count = f"{done}/{total}" if total else ""
-            self._bar.update(self._task, completed=done, total=total, count=count)
-
-    def _end(self, stopped: bool = False) -> None:
-        """End the stage in flight: complete, or ``stopped`` before its end."""
-        import time
-
-        if self._stage is None:
-            return
-        if self._bar is not None:  # the stage's line stays, with its time (and full where complete)
-            if not stopped:
-                self._bar.update(self._task, total=self._total or 1, completed=self._total or 1)
-            self._bar.stop_task(self._task)
-            self._bar.refresh()
-        else:
-            count = f", {self._done} of {self._total}" if self._total else ""
-            elapsed = time.perf_counter() - self._start
-            ended = f"stopped after {elapsed:.1f} s" if stopped else f"{elapsed:.1f} s"
-            print(f"{self._stage}{count}: {ended}", file=sys.stderr, flush=True)
-        self._stage = None
-
-    def stopped(self) -> None:
-        """The run was stopped (a signal): the stage in flight ends as stopped."""
-        self._end(stopped=True)
-
-    def __exit__(self, kind, *exc) -> None:
-        if kind is None or issubclass(kind, KeyboardInterrupt):  # done, or stopped by a second signal
-            self._end(stopped=kind is not None)
-        self._stage = None  # an error: its own line says what went wrong
-        if self._bar is not None:
-            self._bar.stop()
-
-
 def _print_sequence_summary(report: dict, console, warnings_console) -> None:
     """The rig's focal lengths with their evidence, R, T and the sequence's figures; the warnings on
     ``warnings_console`` (stderr)."""
@@ -931,58 +924,66 @@ def _print_sequence_summary(report: dict, console, warnings_console) -> None:
         warnings_console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
 
 
+# the options of export-onnx
+_ExportCheckpoint = Annotated[
+    Path, typer.Argument(help="A training checkpoint (.pt) written by stereogeo train.")
+]
+_ExportModelVersion = Annotated[
+    str | None, typer.Option(help="A version name stored in the model (default: the checkpoint's).")
+]
+_ExportTrainingData = Annotated[
+    str | None,
+    typer.Option(help="A description of the training data stored in the model (default: the checkpoint's)."),
+]
+_ExportSigmaInflation = Annotated[
+    str,
+    typer.Option(
+        help="Factor the refiner's 1-sigma figures are widened by with this model, one number or three "
+        "'ROLL,PITCH,VFOV' (measured on validation data: `evaluate --json` prints each parameter's "
+        "scale_for_68, the factor that puts 68 % of the errors within 1 sigma)."
+    ),
+]
+_ExportPhotoSigmaScale = Annotated[
+    str,
+    typer.Option(
+        help="Factor the sigmas calibrate reports are widened by on top, one number or three "
+        "'ROLL,PITCH,VFOV', so that they hold 68 % of the errors on real photographs, where the network "
+        "errs more than on renders (benchmarks/photo_sigma.py measures it on the crops of real panoramas "
+        "in held-out sets). The estimates do not change."
+    ),
+]
+_ExportPoseSigmas = Annotated[
+    str | None,
+    typer.Option(
+        help="The pose head's 1-sigma errors 'ROT,DIR,SCALE': rotation and translation direction in "
+        "degrees, baseline length as a fraction (68th percentiles on validation data, as "
+        "benchmarks/validate_model.py prints them). calibrate weighs the head by them and reports the "
+        "learned baseline's sigma. Default: the fusion's fixed 5° and 15°, no baseline sigma."
+    ),
+]
+_ExportDepthSigma = Annotated[
+    float | None,
+    typer.Option(
+        help="For a model with a depth head: the relative 1-sigma of the baseline that calibrate reads "
+        "from the matches and the depth (68th percentile on validation data, as "
+        "benchmarks/depth_baseline.py prints it). calibrate reports it as the baseline's sigma."
+    ),
+]
+
+
 @app.command("export-onnx")
 def export_onnx_command(
-    checkpoint: Annotated[
-        Path, typer.Argument(help="A training checkpoint (.pt) written by stereogeo train.")
-    ],
+    checkpoint: _ExportCheckpoint,
     *,
     output: Annotated[Path, typer.Option("--output", "-o", help="The ONNX file to write.")] = Path(
         "stereogeo.onnx"
     ),
-    model_version: Annotated[
-        str | None, typer.Option(help="A version name stored in the model (default: the checkpoint's).")
-    ] = None,
-    training_data: Annotated[
-        str | None,
-        typer.Option(
-            help="A description of the training data stored in the model (default: the checkpoint's)."
-        ),
-    ] = None,
-    sigma_inflation: Annotated[
-        str,
-        typer.Option(
-            help="Factor the refiner's 1-sigma figures are widened by with this model, one number or three "
-            "'ROLL,PITCH,VFOV' (measured on validation data: `evaluate --json` prints each parameter's "
-            "scale_for_68, the factor that puts 68 % of the errors within 1 sigma)."
-        ),
-    ] = "1",
-    photo_sigma_scale: Annotated[
-        str,
-        typer.Option(
-            help="Factor the sigmas calibrate reports are widened by on top, one number or three "
-            "'ROLL,PITCH,VFOV', so that they hold 68 % of the errors on real photographs, where the network "
-            "errs more than on renders (benchmarks/photo_sigma.py measures it on the crops of real panoramas "
-            "in held-out sets). The estimates do not change."
-        ),
-    ] = "1",
-    pose_sigmas: Annotated[
-        str | None,
-        typer.Option(
-            help="The pose head's 1-sigma errors 'ROT,DIR,SCALE': rotation and translation direction in "
-            "degrees, baseline length as a fraction (68th percentiles on validation data, as "
-            "benchmarks/validate_model.py prints them). calibrate weighs the head by them and reports the "
-            "learned baseline's sigma. Default: the fusion's fixed 5° and 15°, no baseline sigma."
-        ),
-    ] = None,
-    depth_sigma: Annotated[
-        float | None,
-        typer.Option(
-            help="For a model with a depth head: the relative 1-sigma of the baseline that calibrate reads "
-            "from the matches and the depth (68th percentile on validation data, as "
-            "benchmarks/depth_baseline.py prints it). calibrate reports it as the baseline's sigma."
-        ),
-    ] = None,
+    model_version: _ExportModelVersion = None,
+    training_data: _ExportTrainingData = None,
+    sigma_inflation: _ExportSigmaInflation = "1",
+    photo_sigma_scale: _ExportPhotoSigmaScale = "1",
+    pose_sigmas: _ExportPoseSigmas = None,
+    depth_sigma: _ExportDepthSigma = None,
 ) -> None:
     """Export a checkpoint to one ONNX file (both views, any size), after checking it against torch."""
     require_training_extra("export-onnx")
@@ -1080,43 +1081,49 @@ def train(ctx: typer.Context) -> None:
     train_main(list(ctx.args))
 
 
+# the options of evaluate
+_EvaluateDataset = Annotated[
+    Path,
+    typer.Argument(
+        help="A dataset folder: stereo pairs (left/, right/ and calib.jsonl with ground truth) or single "
+        "photographs (images and a labels.jsonl of their intrinsics)."
+    ),
+]
+_EvaluateBaselines = Annotated[
+    bool,
+    typer.Option("--baselines", help="Also run ORB and SIFT + essential matrix with the true intrinsics."),
+]
+_EvaluatePlot = Annotated[
+    Path | None, typer.Option(help="Draw the cumulative error curves (up to 10°) into this PNG file.")
+]
+_EvaluateSplit = Annotated[
+    str | None,
+    typer.Option(
+        help="Single photographs: score one half of a split, 'train' or 'measure' (the cameras "
+        "--split-file lists under that name), or the images a file lists (their labels' 'file'), "
+        "one a line."
+    ),
+]
+_EvaluateSplitFile = Annotated[
+    Path | None,
+    typer.Option(
+        help="The split file for --split train|measure (default: the checkout's "
+        "benchmarks/real_photos_split.json)."
+    ),
+]
+
+
 @app.command()
 def evaluate(
-    dataset: Annotated[
-        Path,
-        typer.Argument(
-            help="A dataset folder: stereo pairs (left/, right/ and calib.jsonl with ground truth) or single "
-            "photographs (images and a labels.jsonl of their intrinsics)."
-        ),
-    ],
+    dataset: _EvaluateDataset,
     *,
     json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON on stdout.")] = False,
-    baselines: Annotated[
-        bool,
-        typer.Option(
-            "--baselines", help="Also run ORB and SIFT + essential matrix with the true intrinsics."
-        ),
-    ] = False,
-    plot: Annotated[
-        Path | None, typer.Option(help="Draw the cumulative error curves (up to 10°) into this PNG file.")
-    ] = None,
+    baselines: _EvaluateBaselines = False,
+    plot: _EvaluatePlot = None,
     model: Annotated[Path | None, typer.Option(help="The ONNX model (default: the shipped one).")] = None,
     threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core but one).")] = 0,
-    split: Annotated[
-        str | None,
-        typer.Option(
-            help="Single photographs: score one half of a split, 'train' or 'measure' (the cameras "
-            "--split-file lists under that name), or the images a file lists (their labels' 'file'), "
-            "one a line."
-        ),
-    ] = None,
-    split_file: Annotated[
-        Path | None,
-        typer.Option(
-            help="The split file for --split train|measure (default: the checkout's "
-            "benchmarks/real_photos_split.json)."
-        ),
-    ] = None,
+    split: _EvaluateSplit = None,
+    split_file: _EvaluateSplitFile = None,
 ) -> None:
     """Calibrate every pair (or photograph) of a dataset with ground truth and report the papers' accuracy
     metrics."""
@@ -1292,7 +1299,7 @@ def main() -> None:
         hint = f" (see {context.command_path} --help)" if context is not None else ""
         typer.echo(f"error: {error.format_message()}{hint}", err=True)
         sys.exit(error.exit_code)
-    except click.Abort:  # the end of standard input at a prompt
+    except typer.Abort:  # the end of standard input at a prompt
         typer.echo("error: aborted", err=True)
         sys.exit(EXIT_INTERNAL)
     except StereoGeoError as error:  # raised outside a command body (e.g. while importing a plugin)

@@ -19,20 +19,15 @@ import numpy as np
 import pytest
 from test_cli_calibrate import assert_error, invoke
 
-from stereogeo_cli.batch import (
-    RigEvidence,
-    chordal_mean,
-    combine_focals,
-    discover_pairs,
-    parse_shard,
-    pool_matches,
-    select_shard,
-)
-from stereogeo_cli.batch.interrupt import Interrupted, Stop, interruptible, protected
 from stereogeo_cli.batch.resume import EVIDENCE, MARKER, evidence_bytes, existing_results, read_evidence
+from stereogeo_cli.batch.same_rig import pool_matches
 from stereogeo_cli.errors import StereoGeoError
 from stereogeo_cli.fuse import Matches, fuse_relative_pose
 from stereogeo_cli.geometry import intrinsic_matrix, rotation_angle, rotation_error, rotation_from_axis_angle
+from stereogeo_cli.io.pairs import discover_pairs, parse_shard, select_shard
+from stereogeo_cli.jobs.interrupt import Interrupted, Stop, interruptible, protected
+from stereogeo_cli.rig.combine import chordal_mean, combine_focals
+from stereogeo_cli.rig.evidence import PairEvidence
 
 
 def touch(folder: Path, *names: str) -> None:
@@ -403,7 +398,7 @@ def test_pooled_matches_give_a_better_pose_than_single_pairs():
         pose = fuse_relative_pose(m, K_left, K_right)
         single.append(np.degrees(rotation_error(pose.R, R)))
         single_t.append(direction_error(pose.t_direction))
-        evidence.append(RigEvidence((640, 480), (640, 480), (500.0, 520.0), (1.0, 1.0), None, None, pose.R,
+        evidence.append(PairEvidence((640, 480), (640, 480), (500.0, 520.0), (1.0, 1.0), None, None, pose.R,
                                     pose.t_direction, pose.source, 0.12, m.left, m.right))  # fmt: skip
     pooled, counts = pool_matches(evidence, K_left, K_right)
     assert len(pooled) == sum(counts) and min(counts) > 30
@@ -438,7 +433,7 @@ def test_pooling_judges_each_pair_after_undoing_its_lens():
     np.testing.assert_allclose(undistort_division(seen.left, K, -0.2), m.left, atol=1e-9)
 
     def evidence(k):
-        return RigEvidence((640, 480), (640, 480), (500.0, 500.0), (1.0, 1.0), None, None, R, T / 0.3,
+        return PairEvidence((640, 480), (640, 480), (500.0, 500.0), (1.0, 1.0), None, None, R, T / 0.3,
                            "matches", 0.3, seen.left, seen.right, distortion=(k, k))  # fmt: skip
 
     pooled, (kept,) = pool_matches([evidence(-0.2)], K, K)
@@ -471,7 +466,7 @@ def test_pooling_real_pairs_of_one_rig(shared_data):
         pose = fuse_relative_pose(m, *K, conf=PINHOLE)  # undistorted with the true lens already
         R_true = np.array(calib["R"])
         single.append(np.degrees(rotation_error(pose.R, R_true)))
-        evidence.append(RigEvidence((752, 480), (752, 480), (0.0, 0.0), (1.0, 1.0), None, None, pose.R,
+        evidence.append(PairEvidence((752, 480), (752, 480), (0.0, 0.0), (1.0, 1.0), None, None, pose.R,
                                     pose.t_direction, pose.source, 0.11, m.left, m.right))  # fmt: skip
     pooled, _ = pool_matches(evidence, *K)
     t_mean = np.sum([e.t_direction for e in evidence], axis=0)
@@ -570,10 +565,8 @@ def test_first_signal_asks_to_stop_a_second_stops_at_once_and_handlers_come_back
 
 
 def test_same_rig_evidence_is_kept_exactly():
-    from stereogeo_cli.batch import RigEvidence
-
     rng = np.random.default_rng(1)
-    ev = RigEvidence(
+    ev = PairEvidence(
         (640, 480), (320, 240), (500.123456789, 510.5), (12.25, float("inf")), rng.normal(size=3),
         rng.normal(size=3), rotation_from_axis_angle(rng.normal(size=3)), rng.normal(size=3), "matches",
         0.1234567, rng.normal(size=(7, 2)) * 100, rng.normal(size=(7, 2)) * 100, distortion=(-0.1, 0.0),

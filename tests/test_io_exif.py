@@ -12,11 +12,11 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from stereogeo_cli.batch import FocalEstimate, _with_exif_prior
 from stereogeo_cli.cli import app
 from stereogeo_cli.io import load_image
 from stereogeo_cli.io.exif import SIGMA_35MM, SIGMA_FOCAL_PLANE, read_exif_focal
 from stereogeo_cli.refine import combine_focal
+from stereogeo_cli.rig.combine import FocalEstimate, with_prior
 
 DIAGONAL_35MM = math.hypot(36.0, 24.0)
 runner = CliRunner()
@@ -118,9 +118,9 @@ def test_no_usable_tags_mean_no_prior(tmp_path):
 
 def test_same_rig_counts_the_photos_prior_once():
     fields = FocalEstimate(500.0, 50.0, np.ones(3, bool))
-    combined = _with_exif_prior(fields, [(600.0, 30.0)] * 3)
+    combined = with_prior(fields, [(600.0, 30.0)] * 3)
     assert (combined.focal_px, combined.sigma_px) == pytest.approx(combine_focal(500.0, 50.0, 600.0, 30.0))
-    assert _with_exif_prior(fields, []) is fields
+    assert with_prior(fields, []) is fields
 
 
 def test_combine_focal_weighs_by_inverse_variance_in_log_f():
@@ -215,7 +215,7 @@ def test_batch_and_same_rig_take_the_tags_and_no_exif_turns_them_off(example_pai
     assert prior["source"] == "exif" and reports[1]["focal_prior"][1]["tag_mm"] == round(f35)
     rig = json.loads((out / "rig" / "report.json").read_text())
     # the two (identical) pairs' fields combined, then the tag once: the fields' error on one camera is
-    # common to its pairs, so two pairs weigh as one (FOCAL_COMMON_SHARE in batch/same_rig.py); the tag
+    # common to its pairs, so two pairs weigh as one (FOCAL_COMMON_SHARE in rig/combine.py); the tag
     # counted twice would give 0.82 of this
     fields_rel = prior["fields_sigma_px"] / prior["fields_focal_px"]
     once = (1 / fields_rel**2 + 1 / (prior["sigma_px"] / prior["focal_px"]) ** 2) ** -0.5

@@ -7,13 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from stereogeo_cli.batch import _evidence
 from stereogeo_cli.geometry import gravity_from_roll_pitch
 from stereogeo_cli.io.images import load_image
 from stereogeo_cli.pipeline import Calibrator
 from stereogeo_cli.pipeline import default_conf as pipeline_conf
 from stereogeo_cli.refine.manhattan import default_conf, manhattan_focal, stable_manhattan_focal
 from stereogeo_cli.refine.plumb import PlumbLens
+from stereogeo_cli.rig.evidence import PairEvidence
 
 WIDTH, HEIGHT, FOCAL = 640, 480, 500.0
 
@@ -180,7 +180,7 @@ def test_same_rig_counts_an_edge_combined_focal_length_as_the_pairs_own_evidence
     left, right = bundled
     result = Calibrator(threads=2).calibrate(left, right)
     assert all(entry["source"] == "lines" for entry in result.report()["focal_prior"])
-    evidence = _evidence(result)
+    evidence = PairEvidence.from_result(result)
     assert evidence.focal_prior == (None, None)
     assert evidence.focal == (result.left.focal_px, result.right.focal_px)
     assert evidence.focal_sigma == (result.left.sigma["focal_px"], result.right.sigma["focal_px"])

@@ -394,3 +394,14 @@ def test_a_bag_of_free_running_cameras_pairs_with_a_wider_stamp_tolerance(tmp_pa
                   "--max-frames", "1", "--no-progress")  # fmt: skip
     assert done.returncode == 2
     assert "a sequence needs 2 frame pairs or more (1 read)" in done.stderr.strip().splitlines()[-1]
+
+
+def test_help_into_a_closed_pipe_is_no_traceback(tmp_path):
+    """``stereogeo calibrate-sequence --help | head -1``: the reader goes away; nothing is said of it."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "stereogeo_cli", "calibrate-sequence", "--help"], cwd=tmp_path,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**os.environ, "COLUMNS": "80"},
+    )  # fmt: skip
+    process.stdout.close()  # the reader is gone before the help is written
+    stderr = process.communicate(timeout=300)[1]
+    assert "Traceback" not in stderr and process.returncode in (0, 1), stderr

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from stereogeo_cli.geometry import gravity_from_roll_pitch, quaternion_to_rotation, rotation_from_axis_angle
+from stereogeo_cli.rig.evidence import EMPTY, PairEvidence
 from stereogeo_cli.sequence.colmap import AdjustedCamera, cam_from_new_world
 from stereogeo_cli.sequence.evidence import (
     FocalEvidence,
@@ -16,7 +17,7 @@ from stereogeo_cli.sequence.evidence import (
     frame_attitudes,
     world_up,
 )
-from stereogeo_cli.sequence.run import PairReading, trajectory_tum
+from stereogeo_cli.sequence.run import trajectory_tum
 
 
 def test_a_sharp_adjustment_carries_the_focal_length_and_is_called_observable():
@@ -72,7 +73,7 @@ def _readings_and_poses(up_world, count=30, noise_deg=1.0, seed=0):
     """Frames turning about the world's up, each camera's up read with noise, the rig R a small turn."""
     rng = np.random.default_rng(seed)
     R_rig = rotation_from_axis_angle(np.radians([0.5, -1.0, 0.3]))
-    poses, readings = {}, []
+    poses, readings = {}, {}
     for i in range(count):
         yaw = rotation_from_axis_angle(up_world * math.radians(3.0 * i))
         tilt = rotation_from_axis_angle(np.radians([10.0, 0.0, 5.0]))
@@ -84,20 +85,11 @@ def _readings_and_poses(up_world, count=30, noise_deg=1.0, seed=0):
         for g in (truth_left, R_rig @ truth_left):
             noisy = g + rng.normal(0, math.radians(noise_deg), 3)
             gravity.append(noisy / np.linalg.norm(noisy))
-        readings.append(
-            PairReading(
-                i,
-                (500.0, 500.0),
-                (50.0, 50.0),
-                tuple(gravity),
-                (noise_deg, noise_deg),
-                R_rig,
-                np.array([-0.1, 0, 0]),
-                0.1,
-                0.5,
-                False,
-            )  # fmt: skip
-        )
+        readings[i] = PairEvidence(
+            (640, 480), (640, 480), (500.0, 500.0), (50.0, 50.0), gravity[0], gravity[1], R_rig,
+            np.array([-1.0, 0, 0]), "matches", 0.1, EMPTY, EMPTY, sigma_gravity_deg=(noise_deg, noise_deg),
+            sigma_baseline_rel=0.5,
+        )  # fmt: skip
     return readings, poses, R_rig
 
 
@@ -117,7 +109,7 @@ def test_world_up_averages_the_frames_and_its_sigma_covers_the_error():
 def test_world_up_leaves_out_a_reading_far_off():
     up = np.array([0.0, -1.0, 0.0])
     readings, poses, R_rig = _readings_and_poses(up, noise_deg=0.5)
-    readings[3].gravity = (np.array([1.0, 0.0, 0.0]), readings[3].gravity[1])  # a 90° blunder
+    readings[3].gravity_left = np.array([1.0, 0.0, 0.0])  # a 90° blunder
     found, _, used = world_up(readings, poses, R_rig)
     assert used == 59
     assert math.degrees(math.acos(np.clip(found @ up, -1, 1))) < 0.5

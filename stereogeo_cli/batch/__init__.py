@@ -1,42 +1,19 @@
 """``batch-calibrate``: every stereo pair of a folder, one network session per process.
 
-- :mod:`~stereogeo_cli.batch.discovery`: which files form the pairs, and the shards of a job array.
-- :mod:`~stereogeo_cli.batch.run`: the pairs in worker processes, progress, per-pair results, summaries.
-- :mod:`~stereogeo_cli.batch.same_rig`: ``--same-rig``, one calibration of a rig from all its pairs.
-- :mod:`~stereogeo_cli.batch.interrupt`: stopping cleanly on SIGINT / SIGTERM (for any long command).
+Each module imports only those above it:
+
+- :mod:`~stereogeo_cli.batch.records`: the job of a pass, each pair's outcome and what it tells of its rig.
 - :mod:`~stereogeo_cli.batch.resume`: what a pair's folder records, so that ``--resume`` can keep it.
+- :mod:`~stereogeo_cli.batch.passes`: one pass over the pairs, in this process or in worker processes.
+- :mod:`~stereogeo_cli.batch.same_rig`: ``--same-rig``, one calibration of a rig from all its pairs.
+- :mod:`~stereogeo_cli.batch.run`: the whole batch, its per-pair results and its summaries.
+
+Which files form the pairs is :mod:`stereogeo_cli.io.pairs`; stopping on a signal and progress are
+:mod:`stereogeo_cli.jobs`; the maths of combining pairs into one rig is :mod:`stereogeo_cli.rig`.
 """
 
-from stereogeo_cli.batch.discovery import (
-    IMAGE_EXTENSIONS,
-    PairEntry,
-    discover_pairs,
-    parse_shard,
-    select_shard,
-)
-from stereogeo_cli.batch.run import (
-    RIG_FOLDER,
-    BatchSummary,
-    PairJob,
-    PairOutcome,
-    RigEvidence,
-    _evidence,
-    calibrate_pair,
-    run_batch,
-)
-from stereogeo_cli.batch.same_rig import (
-    FOCAL_COMMON_SHARE,
-    FocalEstimate,
-    _with_exif_prior,
-    calibrate_rig,
-    chordal_mean,
-    combine_focals,
-    pool_matches,
-)
+from stereogeo_cli.batch.records import RIG_FOLDER, PairJob, PairOutcome
+from stereogeo_cli.batch.run import BatchSummary, run_batch
+from stereogeo_cli.batch.same_rig import calibrate_rig
 
-__all__ = [
-    "FOCAL_COMMON_SHARE", "IMAGE_EXTENSIONS", "RIG_FOLDER", "BatchSummary", "FocalEstimate", "PairEntry",
-    "PairJob", "PairOutcome", "RigEvidence", "_evidence", "_with_exif_prior", "calibrate_pair",
-    "calibrate_rig", "chordal_mean", "combine_focals", "discover_pairs", "parse_shard", "pool_matches",
-    "run_batch", "select_shard",
-]  # fmt: skip
+__all__ = ["RIG_FOLDER", "BatchSummary", "PairJob", "PairOutcome", "calibrate_rig", "run_batch"]

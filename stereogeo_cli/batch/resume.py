@@ -23,6 +23,7 @@ import numpy as np
 
 from stereogeo_cli import __version__
 from stereogeo_cli.network.runtime import file_sha256
+from stereogeo_cli.rig.evidence import PairEvidence
 
 MARKER = ".stereogeo-pair.json"
 EVIDENCE = ".stereogeo-evidence.npz"
@@ -81,7 +82,7 @@ def marker_files(folder: Path) -> set[str]:
 
 def write_pair_files(folder: Path, calibration, formats, evidence, inputs: tuple[Path, Path], options: dict,
                      report: dict, started: float) -> float:  # fmt: skip
-    """Write a pair's calibration files (and ``evidence``, a RigEvidence or None), then its marker; return
+    """Write a pair's calibration files (and ``evidence``, a PairEvidence or None), then its marker; return
     the pair's time in ms (from ``started``, a ``time.perf_counter()``) as the marker records it.
 
     An earlier marker goes first (a folder half rewritten is never taken as complete), and the files it
@@ -174,7 +175,7 @@ def remove_leftovers(out_dir: Path, names, summary_stem: str, rig_folder: str | 
 
 
 def evidence_bytes(ev) -> bytes:
-    """A RigEvidence as an .npz file's bytes (exact: every number as float64 or int64)."""
+    """A PairEvidence as an .npz file's bytes (exact: every number as float64 or int64)."""
     priors = np.array([p if p is not None else (np.nan, np.nan) for p in ev.focal_prior], dtype=float)
     arrays = {
         "size_left": np.array(ev.size_left, dtype=np.int64),
@@ -192,6 +193,11 @@ def evidence_bytes(ev) -> bytes:
         "distortion": np.array(ev.distortion, dtype=float),
         "focal_prior": priors,
         "has_prior": np.array([p is not None for p in ev.focal_prior]),
+        "sigma_gravity_deg": np.array(ev.sigma_gravity_deg, dtype=float),
+        "sigma_rotation_deg": np.array(ev.sigma_rotation_deg, dtype=float),
+        "sigma_direction_deg": np.array(ev.sigma_direction_deg, dtype=float),
+        "sigma_baseline_rel": np.array(np.nan if ev.sigma_baseline_rel is None else ev.sigma_baseline_rel),
+        "lens": np.array(bool(ev.lens)),
     }
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
@@ -199,9 +205,8 @@ def evidence_bytes(ev) -> bytes:
 
 
 def read_evidence(data: bytes):
-    """The RigEvidence of :func:`evidence_bytes`."""
-    from stereogeo_cli.batch.run import RigEvidence
-
+    """The PairEvidence of :func:`evidence_bytes` (an older file without the reported sigmas gets the
+    defaults: --same-rig does not use them)."""
     with np.load(io.BytesIO(data), allow_pickle=False) as z:
         a = {key: z[key] for key in z.files}
 
@@ -209,7 +214,17 @@ def read_evidence(data: bytes):
         return tuple(kind(v) for v in values)
 
     priors = tuple(pair(p) if has else None for p, has in zip(a["focal_prior"], a["has_prior"], strict=True))
-    return RigEvidence(
+    optional = {}
+    if "lens" in a:
+        baseline_sigma = float(a["sigma_baseline_rel"])
+        optional = {
+            "sigma_gravity_deg": pair(a["sigma_gravity_deg"]),
+            "sigma_rotation_deg": float(a["sigma_rotation_deg"]),
+            "sigma_direction_deg": float(a["sigma_direction_deg"]),
+            "sigma_baseline_rel": None if np.isnan(baseline_sigma) else baseline_sigma,
+            "lens": bool(a["lens"]),
+        }
+    return PairEvidence(
         size_left=pair(a["size_left"], int),
         size_right=pair(a["size_right"], int),
         focal=pair(a["focal"]),
@@ -224,4 +239,5 @@ def read_evidence(data: bytes):
         matches_right=a["matches_right"],
         distortion=pair(a["distortion"]),
         focal_prior=priors,
+        **optional,
     )

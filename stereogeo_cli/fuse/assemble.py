@@ -1,9 +1,11 @@
 """The calibration to write, from the estimates: one assembly for a single pair and for a rig's pairs.
 
-Both ``calibrate`` (``pipeline.Calibrator``) and ``batch-calibrate --same-rig`` (``batch/same_rig.py``) end
-here: each camera's focal length, size, gravity and reported sigmas, and the fused :class:`RelativePose`,
-become a :class:`StereoCalibration` (K, the OpenCV distortion of the fitted lens, R, T at the baseline) with
-the report's ``pose`` block rendered from the pose in one place.
+``calibrate`` (``pipeline.Calibrator``), ``batch-calibrate --same-rig`` (``batch/same_rig.py``) and
+``calibrate-sequence`` (``sequence/run.py``) end here: each camera's focal length, size, gravity and
+reported sigmas, and the rig's pose, become a :class:`StereoCalibration` (:func:`calibration`) with the
+report's ``pose`` block of the same keys for all: a fused :class:`RelativePose` (:func:`assemble`,
+:func:`pose_report`), or a pose measured otherwise, e.g. by a bundle adjustment
+(:func:`measured_pose_report`).
 """
 
 from __future__ import annotations
@@ -37,10 +39,14 @@ class CameraEstimate:
     height: int
     gravity_up: np.ndarray | None
     sigma: dict[str, float]
+    principal_point: tuple[float, float] | None = None  # (cx, cy) in pixels; None: the image's centre
 
     @property
     def K(self) -> np.ndarray:
-        return intrinsic_matrix(self.focal_px, self.width, self.height)
+        K = intrinsic_matrix(self.focal_px, self.width, self.height)
+        if self.principal_point is not None:
+            K[0, 2], K[1, 2] = self.principal_point
+        return K
 
 
 def focal_sigmas(focal_px: float, height: int, sigma_rel: float, spread_rel: float = 0.0) -> dict[str, float]:
@@ -103,6 +109,56 @@ def pose_report(pose: RelativePose, cameras: tuple[CameraEstimate, CameraEstimat
     }
 
 
+def measured_pose_report(
+    source: str, R: np.ndarray, sigma_rotation_deg: float, sigma_direction_deg: float
+) -> dict[str, Any]:
+    """The report's ``pose`` block, with :func:`pose_report`'s keys, for a pose that no fusion of one set of
+    matches made (``source``: e.g. "sequence", a bundle adjustment): its R's angle and the two sigmas
+    (degrees); the fusion's own measurements are None and its lens terms absent (the lens is in K and D)."""
+    return {
+        "source": source,
+        "sigma_rotation_deg": finite(sigma_rotation_deg),
+        "sigma_direction_deg": finite(sigma_direction_deg),
+        "sign_source": source,
+        "gravity_error_deg": None,
+        "rotation_deg": math.degrees(rotation_angle(R)),
+        "equal_focals": False,
+        "sigma_common_focal_rel": None,
+        "rotation_focal_sigma_rel": [None, None],
+        "distortion_k": [None, None],
+        "sigma_distortion_k": [None, None],
+    }
+
+
+def calibration(
+    cameras: tuple[CameraEstimate, CameraEstimate],
+    pose: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]],
+    scale_source: str,
+    model: tuple[str | None, str | None],
+    warnings: list[str],
+    *,
+    matches: tuple[int, int] = (0, 0),
+    more: dict[str, Any] | None = None,
+    timing_ms: dict[str, float] | None = None,
+    notes: list[str] | None = None,
+) -> StereoCalibration:
+    """The :class:`StereoCalibration` of two cameras and their pose: ``pose`` is (R, T in metres, the OpenCV
+    distortion D of each camera, the report's ``pose`` block). ``matches``: (found, inliers); ``model``:
+    (file name, sha256); ``warnings``: the report's ``warnings``, which open its ``notes``; ``notes``: more
+    notes that are not warnings; ``more``: more report keys (after ``pose``, before ``warnings``)."""
+    left, right = cameras
+    R, T, (D_left, D_right), block = pose[0], pose[1], pose[2], pose[3]
+    return StereoCalibration(
+        K_left=left.K, K_right=right.K, image_size_left=(left.width, left.height),
+        image_size_right=(right.width, right.height), R=R, T=T, D_left=D_left, D_right=D_right,
+        gravity_left=left.gravity_up, gravity_right=right.gravity_up, sigma_left=left.sigma,
+        sigma_right=right.sigma, scale_source=scale_source, matches_found=matches[0],
+        matches_inliers=matches[1], timing_ms=dict(timing_ms or {}), model_file=model[0],
+        model_sha256=model[1], notes="; ".join([*warnings, *(notes or [])]),
+        extra_report={"pose": block, **(more or {}), "warnings": list(warnings)},
+    )  # fmt: skip
+
+
 def assemble(
     cameras: tuple[CameraEstimate, CameraEstimate],
     pose: RelativePose,
@@ -122,23 +178,13 @@ def assemble(
     ``notes``: more notes that are not warnings; ``more_pose``: more keys of the ``pose`` block; ``more``:
     more report keys (after ``pose``, before ``warnings``).
     """
-    left, right = cameras
-    K_left, K_right = left.K, right.K
     # the fusion's k is in the normalised coordinates of the final K
-    D_left, D_right = (
-        opencv_from_division(k, corner_radius(K))
-        for k, K in zip(pose.distortion, (K_left, K_right), strict=True)
+    D = tuple(
+        opencv_from_division(k, corner_radius(camera.K))
+        for k, camera in zip(pose.distortion, cameras, strict=True)
     )
-    return StereoCalibration(
-        K_left=K_left, K_right=K_right, image_size_left=(left.width, left.height),
-        image_size_right=(right.width, right.height), R=pose.R, T=pose.translation(baseline_m),
-        D_left=D_left, D_right=D_right, gravity_left=left.gravity_up, gravity_right=right.gravity_up,
-        sigma_left=left.sigma, sigma_right=right.sigma, scale_source=scale_source,
-        matches_found=pose.matches_found, matches_inliers=pose.inliers, timing_ms=dict(timing_ms or {}),
-        model_file=model[0], model_sha256=model[1], notes="; ".join([*warnings, *(notes or [])]),
-        extra_report={
-            "pose": {**pose_report(pose, cameras), **(more_pose or {})},
-            **(more or {}),
-            "warnings": list(warnings),
-        },
+    block = {**pose_report(pose, cameras), **(more_pose or {})}
+    return calibration(
+        cameras, (pose.R, pose.translation(baseline_m), D, block), scale_source, model, warnings,
+        matches=(pose.matches_found, pose.inliers), more=more, timing_ms=timing_ms, notes=notes,
     )  # fmt: skip

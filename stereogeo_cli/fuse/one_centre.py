@@ -279,35 +279,13 @@ def fit_rotation(
     fit = levenberg_marquardt(
         (R0, zero, zero), reading.cost, reading.normal_equations, reading.moved, settings
     )
-    # the model's own best fit decides between it and the essential matrix, at the noise given
-    squared = 0.5 * np.sum((reading.transfer(fit.x) * reading.unit / noise_px) ** 2, axis=1)  # noise units
-    value = gric(squared, _ROTATION_DIM, 5 + n, conf["gric_lambda3"])
-    # its covariances at its own noise (a parallax the rotation leaves unexplained widens it), floored as
-    # the fusion's are
-    own = float(np.median(np.sqrt(squared))) / math.sqrt(2.0 * math.log(2.0)) * noise_px  # Rayleigh
-    noise_px = max(own, min_noise_px)
+    value, noise_px = _gric_and_own_noise(reading, fit.x, noise_px, n, min_noise_px, conf)
     combined, scale_cov, read_sigma = np.zeros(2), np.zeros((2, 2)), np.full(2, np.inf)
     if n:
-        reading = problem(noise_px, True, weak, True)
-        H = reading.hessian(fit.x)
-        H[3 : 3 + n, 3 : 3 + n] -= np.eye(n) / conf["free_focal_sigma"] ** 2  # the data's read alone
-        # the data's information on the scales, R and the shift marginalised (a Schur complement; R and the
-        # shift have priors, so their block is invertible)
-        scales, others = np.arange(3, 3 + n), np.r_[0:3, 3 + n : reading.size]
-        H_oo = H[np.ix_(others, others)]
-        info = H[np.ix_(scales, scales)] - H[np.ix_(scales, others)] @ np.linalg.solve(
-            H_oo, H[np.ix_(others, scales)]
-        )
-        info = 0.5 * (info + info.T)
-        # the read's covariance with the floor for what the pinhole rotation does not model
-        values, vectors = np.linalg.eigh(info)
-        read_cov = (vectors / np.maximum(values, 1e-12)) @ vectors.T + np.eye(n) * conf["focal_floor"] ** 2
-        read_info = np.linalg.inv(read_cov)
+        H = problem(noise_px, True, weak, True).hessian(fit.x)
+        read_cov = _read_covariance(H, n, conf)
         # 2. combined with the fields' read (mean 0) by their information
-        posterior = np.linalg.inv(read_info + np.linalg.inv(focal_prior_cov[np.ix_(free, free)]))
-        combined[free] = posterior @ (read_info @ fit.x[1][free])
-        scale_cov[np.ix_(free, free)] = posterior
-        read_sigma[free] = np.sqrt(np.diag(read_cov))
+        combined, scale_cov, read_sigma = _combined_with_fields(read_cov, fit.x[1], free, focal_prior_cov)
     # 3. R again at the combined focal lengths, the principal points at the centres as everywhere in the
     # calibration; its covariance takes in the focal lengths'
     fitting = problem(noise_px, False, None, False)
@@ -315,14 +293,62 @@ def fit_rotation(
     fit = levenberg_marquardt(start, fitting.cost, fitting.normal_equations, fitting.moved, settings)
     R = fit.x[0]
     both = problem(noise_px, True, np.zeros((n, n)), False)  # the free scales as columns, no prior
-    H = both.hessian((R, combined, zero))
+    rotation_cov = _rotation_covariance(both.hessian((R, combined, zero)), scale_cov, free, n)
+    inliers = np.linalg.norm(fitting.transfer(fit.x), axis=1) <= 3.0
+    return RotationFit(R, combined, scale_cov, rotation_cov, value, inliers, read_sigma)
+
+
+def _gric_and_own_noise(reading: _Transfer, x, noise_px: float, n: int, min_noise_px: float, conf):
+    """The rotation's GRIC at the fit ``x`` (with ``n`` free log scales) at the noise given, and the noise
+    (pixels) its covariances are computed at: the fit's own, floored at ``min_noise_px``."""
+    # the model's own best fit decides between it and the essential matrix, at the noise given
+    squared = 0.5 * np.sum((reading.transfer(x) * reading.unit / noise_px) ** 2, axis=1)  # noise units
+    value = gric(squared, _ROTATION_DIM, 5 + n, conf["gric_lambda3"])
+    # its covariances at its own noise (a parallax the rotation leaves unexplained widens it), floored as
+    # the fusion's are
+    own = float(np.median(np.sqrt(squared))) / math.sqrt(2.0 * math.log(2.0)) * noise_px  # Rayleigh
+    return value, max(own, min_noise_px)
+
+
+def _read_covariance(H: np.ndarray, n: int, conf) -> np.ndarray:
+    """The covariance [n x n] of the rotation's own read of the ``n`` free log scales from the reading
+    problem's Hessian ``H`` (changed in place): the data's information on them with R and the shift
+    marginalised, with the floor for what the pinhole rotation does not model."""
+    H[3 : 3 + n, 3 : 3 + n] -= np.eye(n) / conf["free_focal_sigma"] ** 2  # the data's read alone
+    # the data's information on the scales, R and the shift marginalised (a Schur complement; R and the
+    # shift have priors, so their block is invertible)
+    scales, others = np.arange(3, 3 + n), np.r_[0:3, 3 + n : len(H)]
+    H_oo = H[np.ix_(others, others)]
+    info = H[np.ix_(scales, scales)] - H[np.ix_(scales, others)] @ np.linalg.solve(
+        H_oo, H[np.ix_(others, scales)]
+    )
+    info = 0.5 * (info + info.T)
+    # the read's covariance with the floor for what the pinhole rotation does not model
+    values, vectors = np.linalg.eigh(info)
+    return (vectors / np.maximum(values, 1e-12)) @ vectors.T + np.eye(n) * conf["focal_floor"] ** 2
+
+
+def _combined_with_fields(read_cov: np.ndarray, read_scales: np.ndarray, free: np.ndarray, focal_prior_cov):
+    """The rotation's read of the free log scales (``read_scales`` [2], covariance ``read_cov``) combined with
+    the fields' read (mean 0, covariance ``focal_prior_cov`` [2 x 2]) by their information: the combined log
+    scales [2], their covariance [2 x 2] and the read's 1-sigmas [2] (0, 0 and inf for a held one)."""
+    combined, scale_cov, read_sigma = np.zeros(2), np.zeros((2, 2)), np.full(2, np.inf)
+    read_info = np.linalg.inv(read_cov)
+    posterior = np.linalg.inv(read_info + np.linalg.inv(focal_prior_cov[np.ix_(free, free)]))
+    combined[free] = posterior @ (read_info @ read_scales[free])
+    scale_cov[np.ix_(free, free)] = posterior
+    read_sigma[free] = np.sqrt(np.diag(read_cov))
+    return combined, scale_cov, read_sigma
+
+
+def _rotation_covariance(H: np.ndarray, scale_cov: np.ndarray, free: np.ndarray, n: int) -> np.ndarray:
+    """R's covariance [3 x 3] from the Hessian ``H`` over (R, the ``n`` free log scales) at the fit, with
+    the scales' covariance ``scale_cov`` taken in (infinite where R's block is singular)."""
     try:
         inverse = np.linalg.inv(H[:3, :3])
     except np.linalg.LinAlgError:
         inverse = np.eye(3) * np.inf
-    rotation_cov = inverse
-    if n:
-        A = inverse @ H[:3, 3:]
-        rotation_cov = inverse + A @ scale_cov[np.ix_(free, free)] @ A.T
-    inliers = np.linalg.norm(fitting.transfer(fit.x), axis=1) <= 3.0
-    return RotationFit(R, combined, scale_cov, rotation_cov, value, inliers, read_sigma)
+    if not n:
+        return inverse
+    A = inverse @ H[:3, 3:]
+    return inverse + A @ scale_cov[np.ix_(free, free)] @ A.T

@@ -342,24 +342,113 @@ def fuse_relative_pose(
     """
     conf = {**default_conf, **(conf or {})}
     has_gravity = gravity_left is not None and gravity_right is not None and gravity_sigma_rad
-    notes: list[str] = []
-    found = len(matches)
+    given = _Given(
+        matches, K_left, K_right, gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad,
+        prior_R, prior_t, focal_sigma_rel, common_focal_sigma_rel, distortion_evidence, lens_seen, conf,
+    )  # fmt: skip
     verdict = None  # a turned rig's: the full fusion again, its verdict on the rig kept (FusionStart)
     if again is not None and again.turned:
         verdict, again = again, None
-    if again is not None:
-        initial = (again.R, again.t, again.mask)
-    else:
-        initial = essential_pose(matches, K_left, K_right, conf) if found >= conf["min_matches"] else None
+    initial = _initial_pose(given, again)
     # (a fusion ``again`` keeps the first one's verdict: its refined inliers may be fewer than RANSAC's)
     if initial is None or (again is None and initial[2].sum() < conf["min_inliers"]):
         inliers = 0 if initial is None else int(initial[2].sum())
         return _pose_head_alone(
-            matches, inliers, prior_R, prior_t, gravity_left if has_gravity else None, gravity_right,
-            gravity_sigma_rad, conf, (K_left, K_right),
+            matches, inliers, prior_R, prior_t, given.gravity_left, gravity_right, gravity_sigma_rad, conf,
+            (K_left, K_right),
         )  # fmt: skip
+    return _fuse_matches(given, initial, again, verdict)
 
-    R0, t0, mask0 = initial
+
+@dataclass
+class _Given:
+    """What :func:`fuse_relative_pose` is given: the matches and the two K, gravity (``gravity_left`` None:
+    no gravity coupling), the pose head's R and t, the focal lengths' relative 1-sigmas, the other evidence
+    of the lenses and the conf (its arguments of the same names)."""
+
+    matches: Matches
+    K_left: np.ndarray
+    K_right: np.ndarray
+    gravity_left: np.ndarray | None
+    gravity_right: np.ndarray | None
+    gravity_sigma: float | None
+    prior_R: np.ndarray | None
+    prior_t: np.ndarray | None
+    focal_sigma_rel: tuple[float | None, float | None]
+    common_focal_sigma_rel: float | None
+    distortion_evidence: tuple[tuple[float, float] | None, tuple[float, float] | None]
+    lens_seen: tuple[bool, bool]
+    conf: dict
+
+
+def _initial_pose(given: _Given, again: FusionStart | None):
+    """Where the fusion starts: the pose (R, unit t) and inlier mask of an earlier fusion (``again``), else
+    the essential matrix's (:func:`essential_pose`); None where there are too few matches or no pose."""
+    if again is not None:
+        return again.R, again.t, again.mask
+    if len(given.matches) >= given.conf["min_matches"]:
+        return essential_pose(given.matches, given.K_left, given.K_right, given.conf)
+    return None
+
+
+def _fuse_matches(given: _Given, initial, again: FusionStart | None, verdict: FusionStart | None):
+    """The pose from enough matches, starting from ``initial`` (R, t, inlier mask): whether the rig is
+    turned and the pose head left out (an earlier fusion's ``verdict``, or ``again``'s, or the matches'),
+    then the chosen fit (``again``: with an earlier fusion's choices), or two views from one centre where a
+    rotation explains the matches better."""
+    conf, (R0, t0, mask0) = given.conf, initial
+    split, scale_sigma, common = _focal_split(given.focal_sigma_rel, given.common_focal_sigma_rel)
+    R_p = _head_rotation(given)
+    noise = _match_noise(given, R0, t0, mask0) if again is None else again.noise_px
+    with_head = _head_priors(given)
+    without_head = replace(with_head, R=None, t=None)
+    notes: list[str] = []
+    if verdict is not None or again is not None:
+        turned, head_out = _earlier_verdict(verdict, again, notes)
+    else:
+        joints = (
+            _joint(given, noise, without_head, common, scale_sigma),
+            _joint(given, noise, with_head, None, scale_sigma),
+        )
+        turned, head_out = _turned_rig(joints, R0, t0, mask0, R_p, split, conf, notes)
+    common = common if turned else None
+    priors = without_head if head_out else with_head
+    found, has_gravity = len(given.matches), given.gravity_left is not None
+    if again is not None and again.one_centre:
+        return _one_centre(
+            given.matches, given.K_left, given.K_right, noise, R0, priors, given.focal_sigma_rel,
+            given.common_focal_sigma_rel, conf, found, has_gravity, head_out,
+        )  # fmt: skip
+    joint = _joint(given, noise, priors, common, scale_sigma)
+    if again is None:
+        best, used_split, k_bounds = _choose(
+            joint, R0, t0, mask0, R_p, priors.R, priors.t, split, given.distortion_evidence
+        )
+    else:
+        best, used_split, k_bounds = _fit_again(joint, again, R0, t0, mask0, split)
+    raw = k_bounds is not None or any(given.lens_seen)
+    pose = _pose_from_fit(joint, best, used_split, k_bounds, given.focal_sigma_rel, raw)
+    if again is None and conf["one_centre"]:
+        one = _rotation_if_better(given, best, used_split, common, k_bounds, priors, head_out)
+        if one is not None:
+            return one
+    pose.matches_found, pose.turned, pose.notes = found, turned, notes
+    pose.equal_focals = used_split is not split
+    pose.start = FusionStart(
+        pose.R, pose.t_direction, best.mask, turned, head_out, k_bounds is not None, pose.equal_focals,
+        tuple(notes), pose.distortion,
+        (float(given.K_left[1, 1] * pose.focal_scale[0]), float(given.K_right[1, 1] * pose.focal_scale[1])),
+        noise,
+    )  # fmt: skip
+    if has_gravity:
+        pose.gravity_error_deg = _gravity_error_deg(pose.R, given.gravity_left, given.gravity_right)
+    return pose
+
+
+def _focal_split(focal_sigma_rel, common_focal_sigma_rel) -> tuple[_Split | None, float, float | None]:
+    """How the fit treats the two focal lengths: the :class:`_Split` of a correction of their ratio (None:
+    both held), the relative 1-sigma of their common scale where the fit holds it (0: known), and the
+    common scale's 1-sigma where the fit may refine it (on a turned rig; None: held)."""
     # The ratio of the two focal lengths is refined with the pose: the matches fix it well on any rig, while
     # the absolute focal is unobservable on near-parallel rigs and absorbs lens distortion (its common scale
     # is refined only on a turned rig: _turned_rig).
@@ -368,75 +457,74 @@ def fuse_relative_pose(
     # how far the common scale of two free focal lengths, held in the fit, can be off: the images' read with
     # the camera bias where given (the sign of t takes it in: _Joint.signed)
     scale_sigma = 0.0 if min(var) <= 0 else common_focal_sigma_rel or float(np.mean(np.sqrt(var)))
-    R_p = None
-    if prior_R is not None:  # the pose head's rotation made consistent with gravity
-        R_p = couple_rotation_to_gravity(prior_R, gravity_left, gravity_right) if has_gravity else prior_R
-    if again is None:
-        errors0 = sampson_errors(fundamental_matrix(K_left, K_right, R0, t0), matches.left, matches.right)
-        noise = max(1.4826 * float(np.median(np.abs(errors0[mask0]))), conf["min_noise_px"])
-    else:  # its scale of the match noise, which the essential matrix's errors gave
-        noise = again.noise_px
-    sigmas = np.radians(conf["prior_rotation_sigma_deg"]), np.radians(conf["prior_direction_sigma_deg"])
-    with_head = _Priors(
-        gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad, prior_R, prior_t, *sigmas
-    )
-    without_head = replace(with_head, R=None, t=None)
-    common = None  # the common scale's sigma where it may be refined (on a turned rig)
+    common = None
     if split is not None and all(v > 0 for v in var) and common_focal_sigma_rel:
         common = float(common_focal_sigma_rel)
-    if verdict is not None:
-        turned, head_out = True, verdict.head_out
-        notes.extend(verdict.notes)
-    elif again is None:
-        joints = (
-            _Joint(matches, K_left, K_right, noise, without_head, common, prior_t, conf, scale_sigma),
-            _Joint(matches, K_left, K_right, noise, with_head, None, prior_t, conf, scale_sigma),
-        )
-        turned, head_out = _turned_rig(joints, R0, t0, mask0, R_p, split, conf, notes)
-    else:
-        turned, head_out = again.turned, again.head_out
-        notes.extend(again.notes)
-    common = common if turned else None
-    priors = without_head if head_out else with_head
-    if again is not None and again.one_centre:
-        return _one_centre(
-            matches, K_left, K_right, noise, R0, priors, focal_sigma_rel, common_focal_sigma_rel, conf, found,
-            has_gravity, head_out,
-        )  # fmt: skip
-    joint = _Joint(matches, K_left, K_right, noise, priors, common, prior_t, conf, scale_sigma)
-    if again is None:
-        best, used_split, k_bounds = _choose(
-            joint, R0, t0, mask0, R_p, priors.R, priors.t, split, distortion_evidence
-        )
-    else:
-        best, used_split, k_bounds = _fit_again(joint, again, R0, t0, mask0, split)
-    raw = k_bounds is not None or any(lens_seen)
-    pose = _pose_from_fit(joint, best, used_split, k_bounds, focal_sigma_rel, raw)
-    if again is None and conf["one_centre"]:
-        # the rotation and the refined essential matrix compared at the noise of the more general model, the
-        # refined essential matrix's (the raw one's can be far too wide), and not at the fusion's floor: a far
-        # scene's parallax can lie below the floor and still tell a rig from a rotation
-        sampson_noise = max(
-            1.4826 * float(np.median(np.abs(best.errors[best.mask]))), conf["one_centre_min_noise_px"]
-        )
-        params = 5 + (used_split is not None) + (common is not None) + 2 * (k_bounds is not None)
-        gric_essential = essential_gric(best.errors, sampson_noise, params, conf["one_centre_conf"])
-        one = _one_centre(
-            matches, K_left, K_right, sampson_noise, best.state.R, priors, focal_sigma_rel,
-            common_focal_sigma_rel, conf, found, has_gravity, head_out, gric_essential,
-        )  # fmt: skip
-        if one is not None:
-            return one
-    pose.matches_found, pose.turned, pose.notes = found, turned, notes
-    pose.equal_focals = used_split is not split
-    pose.start = FusionStart(
-        pose.R, pose.t_direction, best.mask, turned, head_out, k_bounds is not None, pose.equal_focals,
-        tuple(notes), pose.distortion,
-        (float(K_left[1, 1] * pose.focal_scale[0]), float(K_right[1, 1] * pose.focal_scale[1])), noise,
+    return split, scale_sigma, common
+
+
+def _head_rotation(given: _Given) -> np.ndarray | None:
+    """The pose head's rotation made consistent with gravity (as given without gravity; None: no head)."""
+    if given.prior_R is None:
+        return None
+    if given.gravity_left is None:
+        return given.prior_R
+    return couple_rotation_to_gravity(given.prior_R, given.gravity_left, given.gravity_right)
+
+
+def _match_noise(given: _Given, R0, t0, mask0) -> float:
+    """The scale of the match noise (pixels): the robust spread (1.4826 × the median absolute value) of the
+    Sampson errors of the inliers ``mask0`` under the pose (R0, t0), at least ``min_noise_px``."""
+    F = fundamental_matrix(given.K_left, given.K_right, R0, t0)
+    errors0 = sampson_errors(F, given.matches.left, given.matches.right)
+    return max(1.4826 * float(np.median(np.abs(errors0[mask0]))), given.conf["min_noise_px"])
+
+
+def _head_priors(given: _Given) -> _Priors:
+    """The priors of the joint refinement with the pose head: gravity coupling, the head's rotation and
+    translation direction with their conf sigmas."""
+    conf = given.conf
+    sigmas = np.radians(conf["prior_rotation_sigma_deg"]), np.radians(conf["prior_direction_sigma_deg"])
+    return _Priors(
+        given.gravity_left, given.gravity_right, given.gravity_sigma, given.prior_R, given.prior_t, *sigmas
+    )
+
+
+def _joint(given: _Given, noise: float, priors: _Priors, common: float | None, scale_sigma: float) -> _Joint:
+    """The joint refinement of the given matches at the match ``noise``, with these priors."""
+    return _Joint(
+        given.matches, given.K_left, given.K_right, noise, priors, common, given.prior_t, given.conf,
+        scale_sigma,
     )  # fmt: skip
-    if has_gravity:
-        pose.gravity_error_deg = _gravity_error_deg(pose.R, gravity_left, gravity_right)
-    return pose
+
+
+def _earlier_verdict(verdict: FusionStart | None, again: FusionStart | None, notes: list[str]):
+    """Whether the rig is turned and whether the pose head is left out, as an earlier fusion decided: a
+    turned rig's ``verdict`` (turned), else ``again``'s; its notes are added to ``notes``."""
+    if verdict is not None:
+        notes.extend(verdict.notes)
+        return True, verdict.head_out
+    notes.extend(again.notes)
+    return again.turned, again.head_out
+
+
+def _rotation_if_better(given: _Given, best: _Fit, used_split, common, k_bounds, priors, head_out: bool):
+    """The pair as two views from one centre (:func:`_one_centre`) where a rotation explains its matches
+    better than the chosen fit's refined essential matrix (by GRIC), else None."""
+    conf = given.conf
+    # the rotation and the refined essential matrix compared at the noise of the more general model, the
+    # refined essential matrix's (the raw one's can be far too wide), and not at the fusion's floor: a far
+    # scene's parallax can lie below the floor and still tell a rig from a rotation
+    sampson_noise = max(
+        1.4826 * float(np.median(np.abs(best.errors[best.mask]))), conf["one_centre_min_noise_px"]
+    )
+    params = 5 + (used_split is not None) + (common is not None) + 2 * (k_bounds is not None)
+    gric_essential = essential_gric(best.errors, sampson_noise, params, conf["one_centre_conf"])
+    return _one_centre(
+        given.matches, given.K_left, given.K_right, sampson_noise, best.state.R, priors,
+        given.focal_sigma_rel, given.common_focal_sigma_rel, conf, len(given.matches),
+        given.gravity_left is not None, head_out, gric_essential,
+    )  # fmt: skip
 
 
 def _one_centre(

@@ -422,47 +422,67 @@ def refine_camera(
         None if gravity_sigma is None else (gravity_value, gravity_sigma),
     )  # fmt: skip
 
-    log_f_min = float(np.log(focal_from_vfov(np.radians(conf["max_vfov_deg"]), height)))
-    log_f_max = float(np.log(focal_from_vfov(np.radians(conf["min_vfov_deg"]), height)))
+    log_f_bounds = _log_focal_bounds(height, conf)
     g = gravity_init if gravity_init is not None else gravity_value
     log_f = focal_init if focal_init is not None else focal_value
     g, log_f = _start(g, log_f, samples, width, height, conf)
-    log_f = float(np.clip(log_f, log_f_min, log_f_max))
+    log_f = float(np.clip(log_f, *log_f_bounds))
+
+    free = np.array([not fix_gravity, not fix_gravity, not fix_focal])
+    usable = bool(np.any(cu > 0) or np.any(cl > 0))
+    fit = _fit(problem, (g, log_f), free, fix_gravity, log_f_bounds, usable, conf)
+    g, log_f = fit.x
+    return CameraFit(
+        width=int(width),
+        height=int(height),
+        focal_px=float(np.exp(log_f)),
+        gravity_up=g,
+        covariance=_fit_covariance(problem, g, log_f, free, usable, conf),
+        cost=fit.cost,
+        iterations=fit.iterations,
+        converged=fit.converged,
+        history=fit.history,
+    )
+
+
+def _log_focal_bounds(height: int, conf: dict) -> tuple[float, float]:
+    """The (lowest, highest) log f the fit may take: the focal lengths of the widest and the narrowest
+    vFoV allowed (``conf["max_vfov_deg"]``, ``conf["min_vfov_deg"]``) at this image height."""
+    log_f_min = float(np.log(focal_from_vfov(np.radians(conf["max_vfov_deg"]), height)))
+    log_f_max = float(np.log(focal_from_vfov(np.radians(conf["min_vfov_deg"]), height)))
+    return log_f_min, log_f_max
+
+
+def _fit(problem: _Problem, start, free: np.ndarray, fix_gravity: bool, log_f_bounds, usable: bool, conf):
+    """The Levenberg–Marquardt fit of (gravity, log f) from ``start``: gravity moves on the unit sphere
+    (unless held), log f within ``log_f_bounds``, only the ``free`` parameters step, and no step is taken
+    where no sample weighs anything (not ``usable``)."""
+    log_f_min, log_f_max = log_f_bounds
 
     def retract(state, step):
         g, log_f = state
         g_new = retract_on_sphere(g, step[:2]) if not fix_gravity else g
         return g_new, float(np.clip(log_f + step[2], log_f_min, log_f_max))
 
-    free = np.array([not fix_gravity, not fix_gravity, not fix_focal])
-    usable = bool(np.any(cu > 0) or np.any(cl > 0))
     settings = Settings(
         max_iterations=conf["max_iterations"] if usable else 0, lambda_init=conf["lambda_init"],
         lambda_max=conf["lambda_max"], relative_tolerance=conf["relative_tolerance"],
         curvature_switch=conf["curvature_switch"],
     )  # fmt: skip
-    fit = levenberg_marquardt(
-        (g, log_f), lambda s: problem.cost(*s), lambda s, near: problem.normal_equations(*s, near=near),
+    return levenberg_marquardt(
+        start, lambda s: problem.cost(*s), lambda s, near: problem.normal_equations(*s, near=near),
         retract, settings, free,
     )  # fmt: skip
-    g, log_f = fit.x
 
+
+def _fit_covariance(problem: _Problem, g, log_f: float, free: np.ndarray, usable: bool, conf) -> np.ndarray:
+    """The covariance of θ at the fit: the problem's robust one, widened by ``conf["sigma_inflation"]``;
+    without a usable sample, infinite for the free parameters (0 for the held ones)."""
     if usable:
-        cov = problem.covariance(g, log_f, free, conf["sigma_inflation"])
-    else:
-        cov = np.zeros((3, 3))
-        cov[np.ix_(free, free)] = np.inf
-    return CameraFit(
-        width=int(width),
-        height=int(height),
-        focal_px=float(np.exp(log_f)),
-        gravity_up=g,
-        covariance=cov,
-        cost=fit.cost,
-        iterations=fit.iterations,
-        converged=fit.converged,
-        history=fit.history,
-    )
+        return problem.covariance(g, log_f, free, conf["sigma_inflation"])
+    cov = np.zeros((3, 3))
+    cov[np.ix_(free, free)] = np.inf
+    return cov
 
 
 FieldSamples = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]

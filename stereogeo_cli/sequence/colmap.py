@@ -137,7 +137,7 @@ def _cancellable(call, *args, stop=None, **kwargs):
                 token.cancel()
     except BaseException:  # a second signal: stop COLMAP too, since a thread still inside it when
         token.cancel()  # Python exits aborts the process; a third signal waits for it as well
-        from stereogeo_cli.batch.interrupt import protected
+        from stereogeo_cli.jobs.interrupt import protected
 
         with protected():
             finished.wait(CANCEL_WAIT_S)
@@ -160,7 +160,7 @@ def _pycolmap():
         import signal
         import threading
 
-        from stereogeo_cli.batch.interrupt import SIGNALS, signals_blocked
+        from stereogeo_cli.jobs.interrupt import SIGNALS, signals_blocked
 
         main = threading.current_thread() is threading.main_thread()
         handlers = {s: signal.getsignal(s) for s in SIGNALS} if main else {}
@@ -539,7 +539,7 @@ def reconstruct(
 ) -> SequenceModel:  # fmt: skip
     """The whole bridge: match, map and adjust the frames in ``workspace/images/{left,right}/`` (the same
     file names in both, in time order), starting from ``starts`` and the rig (R, T). ``stop``: a
-    :class:`~stereogeo_cli.batch.interrupt.Stop` whose request cancels COLMAP's work (:class:`Cancelled`).
+    :class:`~stereogeo_cli.jobs.interrupt.Stop` whose request cancels COLMAP's work (:class:`Cancelled`).
     ``progress``: called as ``progress(0, None, stage)`` when each of the three stages starts.
 
     Raises:

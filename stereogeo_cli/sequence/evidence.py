@@ -20,6 +20,7 @@ import numpy as np
 
 from stereogeo_cli.fuse.assemble import finite
 from stereogeo_cli.geometry import roll_pitch_from_gravity
+from stereogeo_cli.rig.combine import combine_directions
 
 default_conf = {
     # relative 1-sigma the adjustment's focal length keeps whatever its cost profile says: a real camera's
@@ -160,10 +161,10 @@ def rig_sigmas_deg(
 
 def _up_readings(readings, cam_from_world: dict[int, np.ndarray], R: np.ndarray):
     """Each camera's up reading of every registered frame in world coordinates [N x 3], with its sigma
-    (radians) [N]."""
+    (radians) [N]. ``readings``: per frame index its :class:`~stereogeo_cli.rig.evidence.PairEvidence`."""
     ups, sigmas = [], []
-    for reading in readings:
-        pose = cam_from_world.get(reading.index)
+    for index, reading in readings.items():
+        pose = cam_from_world.get(index)
         if pose is None:
             continue
         world_from_left = pose[:3, :3].T
@@ -178,32 +179,15 @@ def _up_readings(readings, cam_from_world: dict[int, np.ndarray], R: np.ndarray)
 
 
 def world_up(readings, cam_from_world: dict[int, np.ndarray], R: np.ndarray, conf: dict | None = None):
-    """One up vector [3] of the reconstruction's world from every registered frame's readings, its 1-sigma
-    (degrees) and how many readings it used.
-
-    Centre: the normalised coordinate-wise median; readings farther than ``up_reject_sigmas`` of their
-    sigma (or of the readings' spread, if wider) are left out; the rest are averaged with weights 1/σ². The
-    sigma is √(1/Σw), times the Birge ratio where the readings scatter more than their sigmas say, and at
-    least the median sigma over ``up_common_factor``."""
+    """One up vector [3] of the reconstruction's world from every registered frame's readings (per frame
+    index its :class:`~stereogeo_cli.rig.evidence.PairEvidence`), its 1-sigma (degrees) and how many readings
+    it used: :func:`stereogeo_cli.rig.combine.combine_directions`, readings farther than
+    ``up_reject_sigmas`` left out, the sigma at least the median sigma over ``up_common_factor``."""
     conf = {**default_conf, **(conf or {})}
     ups, sigmas = _up_readings(readings, cam_from_world, R)
     if len(ups) == 0:
         return None, None, 0
-    centre = np.median(ups, axis=0)
-    centre /= np.linalg.norm(centre)
-    angles = np.arccos(np.clip(ups @ centre, -1.0, 1.0))
-    spread = 1.4826 * float(np.median(angles))
-    used = angles <= conf["up_reject_sigmas"] * np.maximum(sigmas, spread)
-    w = 1.0 / sigmas[used] ** 2
-    mean = np.sum(w[:, None] * ups[used], axis=0)
-    mean /= np.linalg.norm(mean)
-    sigma = math.sqrt(1.0 / float(np.sum(w)))
-    if used.sum() > 1:
-        residual = np.arccos(np.clip(ups[used] @ mean, -1.0, 1.0))
-        # two tangent components per reading: χ² has 2(k - 1) degrees of freedom
-        birge = math.sqrt(float(np.sum(w * residual**2)) / (2 * (used.sum() - 1)))
-        sigma *= max(1.0, birge)
-    sigma = max(sigma, float(np.median(sigmas[used])) / conf["up_common_factor"])
+    mean, sigma, used = combine_directions(ups, sigmas, conf["up_reject_sigmas"], conf["up_common_factor"])
     return mean, math.degrees(sigma), int(used.sum())
 
 

@@ -29,14 +29,22 @@ from typing import Any
 import cv2
 import numpy as np
 
-from stereogeo_cli.batch.same_rig import chordal_mean, combine_focals
 from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
-from stereogeo_cli.fuse.assemble import finite, focal_sigmas
-from stereogeo_cli.geometry import intrinsic_matrix, rotation_angle
+from stereogeo_cli.fuse.assemble import (
+    CameraEstimate,
+    calibration,
+    finite,
+    focal_sigmas,
+    measured_pose_report,
+)
+from stereogeo_cli.geometry import rotation_angle
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.text import plural
 from stereogeo_cli.pipeline import with_rotation_noted
 from stereogeo_cli.refine.lines import detect_segments
+from stereogeo_cli.rig.combine import FocalEstimate, FocalWidening, pairs_focals, read_from_images, reported
+from stereogeo_cli.rig.evidence import PairEvidence
+from stereogeo_cli.rig.start import rig_baseline, rig_pose
 from stereogeo_cli.sequence import colmap
 from stereogeo_cli.sequence.evidence import (
     FocalEvidence,
@@ -69,24 +77,6 @@ Progress = Callable[[int, "int | None", "str | None"], None]
 
 
 @dataclass
-class PairReading:
-    """What one frame pair's own calibration read (stereogeo's pixels; unit up vectors; degrees)."""
-
-    index: int
-    focal: tuple[float, float]
-    sigma_focal: tuple[float, float]
-    gravity: tuple[np.ndarray | None, np.ndarray | None]
-    sigma_gravity_deg: tuple[float, float]  # the mean of roll's and pitch's reported sigmas, per camera
-    R: np.ndarray
-    T: np.ndarray
-    baseline_m: float
-    sigma_baseline_rel: float | None
-    lens: bool  # a radial lens term was fitted on either camera
-    sigma_rotation_deg: float = math.inf
-    sigma_direction_deg: float = math.inf
-
-
-@dataclass
 class SequenceResult:
     """A sequence's calibration: the rig's files (``calibration``), the world-aligned COLMAP model and
     the left camera's trajectory (time, [4 x 4] world←camera in metres, z up) per registered frame."""
@@ -97,29 +87,6 @@ class SequenceResult:
 
     def report(self) -> dict:
         return self.calibration.to_report()
-
-
-def _reading(index: int, result) -> PairReading:
-    c = result.calibration
-    sigmas = (c.sigma_left or {}, c.sigma_right or {})
-    gravity_sigma = tuple(
-        float(np.nanmean([s.get("roll_deg") or math.nan, s.get("pitch_deg") or math.nan])) for s in sigmas
-    )
-    pose = c.extra_report.get("pose") or {}
-    return PairReading(
-        index=index,
-        focal=(float(c.K_left[0, 0]), float(c.K_right[0, 0])),
-        sigma_focal=tuple(float(s.get("focal_px") or math.inf) for s in sigmas),
-        gravity=(c.gravity_left, c.gravity_right),
-        sigma_gravity_deg=gravity_sigma,
-        R=c.R,
-        T=c.T,
-        baseline_m=c.baseline_m,
-        sigma_baseline_rel=pose.get("sigma_baseline_rel"),
-        lens=bool(np.any(c.D_left != 0) or np.any(c.D_right != 0)),
-        sigma_rotation_deg=pose.get("sigma_rotation_deg") or math.inf,
-        sigma_direction_deg=pose.get("sigma_direction_deg") or math.inf,
-    )
 
 
 def _write_frame(
@@ -159,11 +126,13 @@ class FrameReadings:
     by image name)."""
 
     frames: list[FramePair]
-    readings: list[PairReading]
+    readings: dict[int, PairEvidence]  # by frame index
     sizes: tuple
     warnings: list[str]
     features: dict
     segments: dict  # per image name its line segments [N x 4] (x1, y1, x2, y2), stereogeo's pixels
+    # what each camera's focal length from the pairs reports beyond their combined sigma
+    widenings: tuple[FocalWidening, FocalWidening] = (FocalWidening(), FocalWidening())
 
 
 def read_frames(
@@ -178,7 +147,7 @@ def read_frames(
     for sensor in colmap.SENSORS:
         (images / sensor).mkdir(parents=True, exist_ok=True)
     frames: list[FramePair] = []
-    readings: list[PairReading] = []
+    readings: dict[int, PairEvidence] = {}
     warnings: list[str] = []
     features: dict = {}
     segments: dict = {}
@@ -195,7 +164,7 @@ def read_frames(
         if len(frames) % stride == 0:
             try:
                 result = calibrator.calibrate(frame.left, frame.right, baseline_m=baseline_m, rotate=rotate)
-                readings.append(_reading(frame.index, result))
+                readings[frame.index] = PairEvidence.from_result(result, matches=False)
             except CalibrationFailed as error:
                 warnings.append(f"frame {frame.name}: {error}")
         frames.append(FramePair(frame.index, frame.time, frame.name, np.empty(0), np.empty(0)))
@@ -206,35 +175,27 @@ def read_frames(
         raise StereoGeoError(f"{source.description}: a sequence needs 2 frame pairs or more ({read} read)")
     if not readings:
         raise CalibrationFailed("no frame pair of the sequence could be calibrated")
-    return FrameReadings(frames, readings, sizes, warnings, features, segments)
+    own = read_from_images(list(readings.values()))
+    widenings = tuple(FocalWidening.of(calibrator, from_images) for from_images in own)
+    return FrameReadings(frames, readings, sizes, warnings, features, segments, widenings)
 
 
-def _start(readings: list[PairReading], sizes: tuple, pinhole: bool) -> tuple:
-    """The adjustment's start: each camera's combined focal length, the lens model (a radial term where
-    most pairs fitted one), and the rig's R and T (the pairs' mean rotation and direction, the median
-    learned length)."""
-    radial = not pinhole and sum(r.lens for r in readings) * 2 > len(readings)
-    focals = [
-        combine_focals([r.focal[i] for r in readings], [r.sigma_focal[i] for r in readings]) for i in (0, 1)
+def _start(read: FrameReadings, pinhole: bool) -> tuple:
+    """The adjustment's start: each camera's focal length from the pairs (as a rig reports it:
+    :mod:`stereogeo_cli.rig.combine`), the lens model (a radial term where most pairs fitted one), and the
+    rig's R and T (:func:`~stereogeo_cli.rig.start.rig_pose`, at the pairs' median learned length)."""
+    evidence = list(read.readings.values())
+    radial = not pinhole and sum(e.lens for e in evidence) * 2 > len(evidence)
+    focals: list[FocalEstimate] = [
+        reported(estimate, widening)
+        for estimate, widening in zip(pairs_focals(evidence), read.widenings, strict=True)
     ]
     starts = tuple(
-        colmap.CameraStart(f.focal_px, w, h, radial) for f, (h, w) in zip(focals, sizes, strict=True)
+        colmap.CameraStart(f.focal_px, w, h, radial) for f, (h, w) in zip(focals, read.sizes, strict=True)
     )
-    R = chordal_mean([r.R for r in readings])
-    direction = np.sum([r.T / np.linalg.norm(r.T) for r in readings], axis=0)
-    T = direction / np.linalg.norm(direction) * float(np.median([r.baseline_m for r in readings]))
+    R, direction = rig_pose(evidence)
+    T = direction * float(np.median([e.baseline_m for e in evidence]))
     return starts, focals, R, T
-
-
-def _baseline(readings: list[PairReading], baseline_m: float | None) -> tuple[float, str, float | None]:
-    """The rig's baseline (metres), where it came from, and its relative 1-sigma: ``--baseline``, or else
-    the median of the pairs' learned ones with a typical pair's sigma (the frames of one scene share the
-    pose head's error on it, which does not average away)."""
-    if baseline_m is not None:
-        return baseline_m, "baseline", 0.0
-    sigmas = [s for r in readings if (s := r.sigma_baseline_rel) is not None and math.isfinite(s)]
-    median_sigma = float(np.median(sigmas)) if sigmas else None
-    return float(np.median([r.baseline_m for r in readings])), "learned", median_sigma
 
 
 def calibrate_frames(
@@ -254,7 +215,7 @@ def calibrate_frames(
     timing: dict[str, float] = {}
     notes = [*warnings, *read.warnings]
     start = time.perf_counter()
-    starts, pair_focals, R0, T0 = _start(readings, sizes, pinhole)
+    starts, pair_focals, R0, T0 = _start(read, pinhole)
     conf = {**default_conf, **(conf or {})}
     try:
         model = colmap.reconstruct(
@@ -279,7 +240,7 @@ def calibrate_frames(
         notes.append("no frame's gravity could be read: the world's z axis is the first frame's image up")
     readings_up = (up, up_sigma_deg, used)
     up, up_sigma_deg, segments_up = _with_vertical_segments(model, read, readings_up, conf, notes)
-    baseline, scale_source, baseline_sigma = _baseline(readings, baseline_m)
+    baseline, scale_source, baseline_sigma = rig_baseline(list(readings.values()), baseline_m)
     to_output = colmap.align_world(model, up, baseline / float(np.linalg.norm(model.T)))
     cam_from_world = {i: colmap.cam_from_new_world(pose, to_output) for i, pose in registered.items()}
     attitudes = frame_attitudes(cam_from_world, np.array([0.0, 0.0, 1.0]), model.R)
@@ -352,15 +313,14 @@ def _pairs_only(frames, readings, sizes, starts, pair_focals, R, T, baseline_m, 
     ]
     model = colmap.SequenceModel(None, cameras, R, T, {}, 0, 0, math.nan)
     attitudes = {
-        r.index: {
-            side: attitude(g) for side, g in zip(("left", "right"), r.gravity, strict=True) if g is not None
-        }
-        for r in readings
+        index: {side: attitude(g) for side, g in zip(("left", "right"), e.gravity, strict=True)}
+        for index, e in readings.items()
     }
-    baseline, scale_source, baseline_sigma = _baseline(readings, baseline_m)
+    evidence = list(readings.values())
+    baseline, scale_source, baseline_sigma = rig_baseline(evidence, baseline_m)
     rig_sigmas = (
-        float(np.median([r.sigma_rotation_deg for r in readings])),
-        float(np.median([r.sigma_direction_deg for r in readings])),
+        float(np.median([e.sigma_rotation_deg for e in evidence])),
+        float(np.median([e.sigma_direction_deg for e in evidence])),
     )
     calibration = _assemble(
         frames, model, focals, attitudes, (None, None, 0, None, 0), None, baseline,
@@ -384,29 +344,39 @@ def _travel(cam_from_world: dict[int, np.ndarray]) -> float:
 
 def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model_file, notes, timing,
               sizes, rig_sigmas) -> StereoCalibration:  # fmt: skip
-    """The rig's :class:`StereoCalibration` with the report's ``pose`` and ``sequence`` blocks."""
-    (h_l, w_l), (h_r, w_r) = sizes
-    K = [intrinsic_matrix(f.focal_px, w, h) for f, (h, w) in zip(focals, sizes, strict=True)]
-    sigmas = [
-        focal_sigmas(f.focal_px, h, f.sigma_px / f.focal_px) for f, (h, _) in zip(focals, sizes, strict=True)
-    ]
-    for K_cam, camera in zip(K, model.cameras, strict=True):
-        if camera.principal_point_refined:
-            K_cam[0, 2], K_cam[1, 2] = camera.principal_point
-    D = [np.array([c.k1, c.k2, 0.0, 0.0, 0.0]) if (c.k1 or c.k2) else np.zeros(0) for c in model.cameras]
+    """The rig's :class:`StereoCalibration` (:func:`stereogeo_cli.fuse.assemble.calibration`) with the
+    report's ``pose`` and ``sequence`` blocks."""
+    cameras = tuple(
+        CameraEstimate(
+            f.focal_px,
+            w,
+            h,
+            None,
+            focal_sigmas(f.focal_px, h, f.sigma_px / f.focal_px),
+            camera.principal_point if camera.principal_point_refined else None,
+        )  # fmt: skip
+        for f, (h, w), camera in zip(focals, sizes, model.cameras, strict=True)
+    )
+    D = tuple(np.array([c.k1, c.k2, 0.0, 0.0, 0.0]) if (c.k1 or c.k2) else np.zeros(0) for c in model.cameras)
     scale_source, baseline_sigma = scale
-    up_world, up_sigma_deg, up_used, readings_sigma_deg, segments_used = up
     T = model.T / np.linalg.norm(model.T) * baseline
-    by_index = {f.index: f for f in frames}
-    sigma_rotation, sigma_direction = rig_sigmas
     pose = {
-        "source": "sequence",
-        "sigma_rotation_deg": finite(sigma_rotation),
-        "sigma_direction_deg": finite(sigma_direction),
-        "rotation_deg": math.degrees(rotation_angle(model.R)),
+        **measured_pose_report("sequence", model.R, *rig_sigmas),
         "sigma_baseline_rel": baseline_sigma,
     }
-    sequence = {
+    sequence = _sequence_block(frames, model, focals, attitudes, up, span, scale)
+    return calibration(
+        cameras, (model.R, T, D, pose), scale_source, model_file, notes, matches=(model.points, model.points),
+        more={"sequence": sequence}, timing_ms=timing,
+    )  # fmt: skip
+
+
+def _sequence_block(frames, model, focals, attitudes, up, span, scale) -> dict:
+    """The report's ``sequence`` block (docs/sequence.md, "Outputs")."""
+    scale_source, baseline_sigma = scale
+    up_world, up_sigma_deg, up_used, readings_sigma_deg, segments_used = up
+    by_index = {f.index: f for f in frames}
+    return {
         "frames_read": len(frames),
         "frames_registered": len(model.cam_from_world),
         "models": model.models,
@@ -441,13 +411,6 @@ def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model
             for i in sorted(attitudes)
         ],
     }
-    return StereoCalibration(
-        K_left=K[0], K_right=K[1], image_size_left=(w_l, h_l), image_size_right=(w_r, h_r), R=model.R, T=T,
-        D_left=D[0], D_right=D[1], sigma_left=sigmas[0], sigma_right=sigmas[1],
-        scale_source=scale_source, matches_found=model.points, matches_inliers=model.points, timing_ms=timing,
-        model_file=model_file[0], model_sha256=model_file[1], notes="; ".join(notes),
-        extra_report={"pose": pose, "sequence": sequence, "warnings": list(notes)},
-    )  # fmt: skip
 
 
 def calibrate_sequence(
@@ -467,7 +430,7 @@ def calibrate_sequence(
     ``calibrator``: a :class:`~stereogeo_cli.pipeline.Calibrator` (one network session for every pair);
     ``workspace``: a folder for COLMAP's images and database (default: a temporary one, removed after);
     ``rotate``: degrees to turn each pair clockwise before the network reads it (a rig upside down: 180);
-    ``stop``: a :class:`~stereogeo_cli.batch.interrupt.Stop`: once it is requested the run ends after the
+    ``stop``: a :class:`~stereogeo_cli.jobs.interrupt.Stop`: once it is requested the run ends after the
     frame or COLMAP stage in flight and returns None (nothing half done is returned).
     """
     temporary = workspace is None
@@ -558,9 +521,9 @@ def write_sequence(out_dir: str | Path, result: SequenceResult, formats=None, *,
     into a new folder that then takes its place in one step (:func:`check_output_folder` decides whether
     an ``out_dir`` that holds files may be replaced). ``stop``: once it is requested before that step,
     nothing is written and ``[]`` is returned."""
-    from stereogeo_cli.batch.interrupt import protected
     from stereogeo_cli.io.atomic import replace_folder_atomically
     from stereogeo_cli.io.writers import DEFAULT_FORMATS, render_calibration
+    from stereogeo_cli.jobs.interrupt import protected
 
     check_output_folder(out_dir, overwrite)
     files: dict[str, str | bytes] = dict(render_calibration(result.calibration, formats or DEFAULT_FORMATS))

@@ -6,7 +6,7 @@ images as H x W x 3 uint8 RGB — one pair in memory at a time, and can be itera
 exists, a video opens and has a first frame, a bag has the topics and matching stamps, the first pair
 decodes), so that a bad input fails at once rather than after a long run.
 
-- **Folder**: the layouts of ``batch-calibrate`` (:func:`~stereogeo_cli.batch.discovery.discover_pairs`:
+- **Folder**: the layouts of ``batch-calibrate`` (:func:`~stereogeo_cli.io.pairs.discover_pairs`:
   ``left/`` + ``right/``, ``cam0/`` + ``cam1/``, ``*_left``/``*_right``, ``*_L``/``*_R``), in natural sort
   order. Images are read with :func:`~stereogeo_cli.io.images.load_image`, exactly as ``calibrate`` reads
   them (EXIF orientation, 16-bit, grey). Names without a partner are left out (listed in ``warnings``).
@@ -48,9 +48,9 @@ from pathlib import Path
 
 import numpy as np
 
-from stereogeo_cli.batch.discovery import discover_pairs
 from stereogeo_cli.errors import StereoGeoError
 from stereogeo_cli.io.images import MIN_SIDE, _to_uint8, load_image
+from stereogeo_cli.io.pairs import discover_pairs
 from stereogeo_cli.io.text import plural
 
 FPS_SLACK = 0.05  # share of 1/fps by which kept frames may come early (camera timing jitter)

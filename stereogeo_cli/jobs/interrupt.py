@@ -8,7 +8,7 @@ at once: it raises :class:`Interrupted` (a ``KeyboardInterrupt``) in the main th
 :func:`protected` block, which it lets finish first, so that a set of files written together is either
 all there or not written::
 
-    from stereogeo_cli.batch.interrupt import Interrupted, interruptible, protected
+    from stereogeo_cli.jobs.interrupt import Interrupted, interruptible, protected
 
     with interruptible(notice="stopping after the item in flight; {name} again to stop at once") as stop:
         try:
