@@ -643,7 +643,7 @@ def batch_calibrate(
     if threads < 0 or workers < 1:
         raise StereoGeoError("--threads must be 0 or more and --workers 1 or more")
     _check_rotate(rotate)
-    from stereogeo_cli.batch import run_batch
+    from stereogeo_cli.batch import BatchOptions, run_batch
     from stereogeo_cli.io.pairs import parse_shard
     from stereogeo_cli.io.text import plural
     from stereogeo_cli.jobs.interrupt import interruptible
@@ -652,12 +652,12 @@ def batch_calibrate(
     _check_output_folder(output)
     notice = "{name}: stopping after the pairs in flight (again: at once), then writing the summaries"
     with interruptible(notice=notice) as stop:
-        summary = run_batch(
-            folder, output, formats=names, baseline_m=baseline, model=model, threads=threads,
-            workers=workers, same_rig=same_rig, shard=shard_spec, progress=sys.stderr.isatty(),
-            pinhole=pinhole, lines=lines, exif=exif, rotate=rotate, resume=resume, overwrite=overwrite,
-            stop=stop,
+        options = BatchOptions(
+            formats=names, baseline_m=baseline, model=model, threads=threads, workers=workers,
+            same_rig=same_rig, shard=shard_spec, progress=sys.stderr.isatty(), pinhole=pinhole, lines=lines,
+            exif=exif, rotate=rotate, resume=resume, overwrite=overwrite,
         )  # fmt: skip
+        summary = run_batch(folder, output, options, stop)
     total, left = len(summary.outcomes), summary.not_run
     ok = total - summary.failed - left
     if json_out:

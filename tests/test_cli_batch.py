@@ -480,11 +480,11 @@ def test_pooling_real_pairs_of_one_rig(shared_data):
 def test_same_rig_on_raw_euroc_finds_the_lens_and_the_focal(shared_data, tmp_path):
     """Ten raw EuRoC pairs of one rig (k1 = -0.28): the joint calibration fits the lens and the focal
     lengths (their ratio refined with the pose, as for one pair) and beats the pairs' own rotations."""
-    from stereogeo_cli.batch import run_batch
+    from stereogeo_cli.batch import BatchOptions, run_batch
 
     folder = shared_data / "real-dev" / "euroc"
     truth = [json.loads(line) for line in (folder / "calib.jsonl").read_text().splitlines()]
-    summary = run_batch(folder, tmp_path, same_rig=True, workers=1)
+    summary = run_batch(folder, tmp_path, BatchOptions(same_rig=True, workers=1))
     assert summary.rig is not None and summary.failed == 0
     rig = summary.rig.to_report()
     R_true = np.array(truth[0]["R"])  # one rig: the same R for every pair
@@ -610,13 +610,13 @@ def test_an_empty_shard_writes_an_empty_summary(small_images, onnx_model, tmp_pa
 
 
 def test_a_stop_before_the_first_pair_lists_every_pair_as_not_run(small_images, onnx_model, tmp_path):
-    from stereogeo_cli.batch import run_batch
+    from stereogeo_cli.batch import BatchOptions, run_batch
 
     folder = pair_folder(tmp_path / "in", small_images, ("a", "b"))
     (folder / "c_left.png").write_bytes(b"")  # unmatched: failed, as always
     stop = Stop()
     stop.request(signal.SIGTERM)
-    summary = run_batch(folder, tmp_path / "out", model=onnx_model, same_rig=True, stop=stop)
+    summary = run_batch(folder, tmp_path / "out", BatchOptions(model=onnx_model, same_rig=True), stop)
     assert summary.interrupted == "SIGTERM" and (summary.not_run, summary.failed) == (2, 1)
     saved = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert saved["counts"] == {"pairs": 3, "ok": 0, "failed": 1, "not_run": 2}

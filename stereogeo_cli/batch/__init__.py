@@ -12,8 +12,10 @@ Which files form the pairs is :mod:`stereogeo_cli.io.pairs`; stopping on a signa
 :mod:`stereogeo_cli.jobs`; the maths of combining pairs into one rig is :mod:`stereogeo_cli.rig`.
 """
 
-from stereogeo_cli.batch.records import RIG_FOLDER, PairJob, PairOutcome
+from stereogeo_cli.batch.records import RIG_FOLDER, BatchOptions, PairJob, PairOutcome
 from stereogeo_cli.batch.run import BatchSummary, run_batch
 from stereogeo_cli.batch.same_rig import calibrate_rig
 
-__all__ = ["RIG_FOLDER", "BatchSummary", "PairJob", "PairOutcome", "calibrate_rig", "run_batch"]
+__all__ = [
+    "RIG_FOLDER", "BatchOptions", "BatchSummary", "PairJob", "PairOutcome", "calibrate_rig", "run_batch",
+]  # fmt: skip

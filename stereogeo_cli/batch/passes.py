@@ -138,28 +138,8 @@ def run_pass(
     if not entries:
         return outcomes
 
-    def stopping() -> bool:
-        return stop is not None and stop.requested
-
     if workers <= 1 or len(entries) <= 1:
-        # one after the other, each pair loaded on a thread while the one before it is calibrated, and its
-        # image work started on the pool while that one's last stages run
-        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-load") as loader:
-            loading = loader.submit(load_entry, entries[0], job)
-            for i, entry in enumerate(entries):
-                if stopping():
-                    break
-                current, loading = loading, None
-                if i + 1 < len(entries) and not stopping():
-                    loading = loader.submit(load_entry, entries[i + 1], job)
-                upcoming = _images_when_loaded(loading, stop)
-                try:
-                    outcomes[i] = calibrate_pair(calibrator(), entry, job, current, upcoming)
-                except Interrupted as stop_now:  # a pair written whole before the stop is done
-                    outcomes[i] = getattr(stop_now, "outcome", None)
-                    raise
-                progress.finished(outcomes[i])
-        return outcomes
+        return _run_here(entries, job, calibrator, progress, stop, outcomes)
     total = job.threads if job.threads > 0 else usable_cores()
     per_worker = max(1, total // workers)
     job = PairJob(**{**job.__dict__, "threads": per_worker})
@@ -191,7 +171,7 @@ def run_pass(
                     raise StereoGeoError(outcome.error)
                 outcomes[i] = outcome
                 progress.finished(outcome)
-                if not stopping():
+                if not (stop is not None and stop.requested):
                     submit_next()
     except Exception:
         try:  # the pairs in flight are finished, none other started
@@ -204,6 +184,31 @@ def run_pass(
         _kill_workers(pool, [entries[i] for i in pending.values()], job)
         raise
     pool.shutdown(wait=True)
+    return outcomes
+
+
+def _run_here(entries, job: PairJob, calibrator, progress: PairProgress, stop, outcomes) -> list:
+    """:func:`run_pass` in this process: one pair after the other, each loaded on a thread while the one
+    before it is calibrated, and its image work started on the pool while that one's last stages run."""
+
+    def stopping() -> bool:
+        return stop is not None and stop.requested
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereogeo-load") as loader:
+        loading = loader.submit(load_entry, entries[0], job)
+        for i, entry in enumerate(entries):
+            if stopping():
+                break
+            current, loading = loading, None
+            if i + 1 < len(entries) and not stopping():
+                loading = loader.submit(load_entry, entries[i + 1], job)
+            upcoming = _images_when_loaded(loading, stop)
+            try:
+                outcomes[i] = calibrate_pair(calibrator(), entry, job, current, upcoming)
+            except Interrupted as stop_now:  # a pair written whole before the stop is done
+                outcomes[i] = getattr(stop_now, "outcome", None)
+                raise
+            progress.finished(outcomes[i])
     return outcomes
 
 

@@ -27,6 +27,36 @@ NUMERIC_COLUMNS = CSV_COLUMNS[3:16]
 
 
 @dataclass(frozen=True)
+class BatchOptions:
+    """How ``batch-calibrate`` runs, resolved once where the command starts.
+
+    ``formats``: the output formats of each pair (and of the joint calibration); ``workers``: processes, each
+    with its own network session of ``threads // workers`` threads; ``same_rig``: also one joint calibration
+    of all pairs (``rig/``); ``shard``: only shard i of n (1-based); ``progress``: a Rich progress bar on
+    stderr (else one plain line per pair there); ``pinhole``: fit no lens distortion; ``lines``: fit each
+    camera's gravity to the image's vertical line segments too; ``exif``: take each photo's EXIF focal length
+    as a prior; ``rotate``: degrees (0, 90, 180 or 270) to turn both images of every pair clockwise before
+    they are read (the results are for the images as they are); ``resume``: keep each pair whose folder holds
+    a complete calibration made with the same options, model and images (``batch/resume.py``);
+    ``overwrite``: replace what the output folder holds."""
+
+    formats: tuple[str, ...] = ("opencv", "json")
+    baseline_m: float | None = None
+    model: Path | None = None
+    threads: int = 0
+    workers: int = 1
+    same_rig: bool = False
+    shard: tuple[int, int] | None = None
+    progress: bool = False
+    pinhole: bool = False
+    lines: bool = True
+    exif: bool = True
+    rotate: int = 0
+    resume: bool = False
+    overwrite: bool = False
+
+
+@dataclass(frozen=True)
 class PairJob:
     """What to do with each pair: the same for every pair of a pass."""
 

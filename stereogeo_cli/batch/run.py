@@ -22,6 +22,7 @@ from stereogeo_cli.batch.records import (
     CSV_COLUMNS,
     NUMERIC_COLUMNS,
     RIG_FOLDER,
+    BatchOptions,
     PairJob,
     PairOutcome,
     json_safe,
@@ -118,62 +119,79 @@ def summary_files(
 def run_batch(
     folder: str | os.PathLike,
     out_dir: str | os.PathLike,
-    *,
-    formats: tuple[str, ...] = ("opencv", "json"),
-    baseline_m: float | None = None,
-    model: Path | None = None,
-    threads: int = 0,
-    workers: int = 1,
-    same_rig: bool = False,
-    shard: tuple[int, int] | None = None,
-    progress: bool = False,
-    pinhole: bool = False,
-    lines: bool = True,
-    exif: bool = True,
-    rotate: int = 0,
-    resume: bool = False,
-    overwrite: bool = False,
+    options: BatchOptions = BatchOptions(),
     stop: Stop | None = None,
 ) -> BatchSummary:
-    """Calibrate every pair of ``folder`` into ``out_dir/<name>/``, write the summaries (and ``rig/``).
+    """Calibrate every pair of ``folder`` into ``out_dir/<name>/`` as ``options`` say
+    (:class:`~stereogeo_cli.batch.records.BatchOptions`), write the summaries (and ``rig/``).
 
-    Args:
-        formats: output formats of each pair (and of the joint calibration).
-        workers: processes; each has its own network session with ``threads // workers`` threads.
-        progress: a Rich progress bar on stderr (else one plain line per pair there).
-        pinhole: the images have no lens distortion (rectified or undistorted): none is fitted.
-        lines: fit each camera's gravity to the image's vertical line segments too (docs/refine.md).
-        exif: take each photo's EXIF focal length as a prior (stereogeo_cli/io/exif.py).
-        rotate: degrees (0, 90, 180 or 270) to turn both images of every pair clockwise before they are read
-            (``Calibrator.calibrate``); the results are for the images as they are.
-        resume: take each pair whose folder holds a complete calibration made with the same options, model
-            and images (stereogeo_cli/batch/resume.py) from it, and calibrate the others.
-        overwrite: replace what ``out_dir`` holds. Without ``resume`` or ``overwrite``, an ``out_dir`` that
-            already holds results of these pairs (their folders, the summaries, ``rig/``) is refused; with
-            either, the temporary files of the atomic writes that a run killed mid-write left there go first
-            (:func:`stereogeo_cli.batch.resume.remove_leftovers`).
-        stop: the :class:`~stereogeo_cli.jobs.interrupt.Stop` of an active ``interruptible()`` block: once
-            a signal comes, no pair is started, the pairs in flight are finished (at a second signal: the
-            workers are stopped at once), the summaries are written with the other pairs "not run", and the
-            summary is returned with ``interrupted`` set. Without it a ``KeyboardInterrupt`` is raised again
-            once the summaries are written.
+    Without ``options.resume`` or ``options.overwrite``, an ``out_dir`` that already holds results of these
+    pairs (their folders, the summaries, ``rig/``) is refused; with either, the temporary files of the atomic
+    writes that a run killed mid-write left there go first
+    (:func:`stereogeo_cli.batch.resume.remove_leftovers`).
+
+    ``stop``: the :class:`~stereogeo_cli.jobs.interrupt.Stop` of an active ``interruptible()`` block: once a
+    signal comes, no pair is started, the pairs in flight are finished (at a second signal: the workers are
+    stopped at once), the summaries are written with the other pairs "not run", and the summary is returned
+    with ``interrupted`` set. Without it a ``KeyboardInterrupt`` is raised again once the summaries are
+    written.
+
     Raises:
         StereoGeoError: no pairs (exit code 2), results already in ``out_dir``, or a model that cannot be
         loaded. A pair that fails does not raise: its outcome is "failed". A failed joint calibration is
         returned in ``rig_error``.
     """
     folder, out_dir = Path(folder), Path(out_dir)
-    if resume and overwrite:
+    entries = _entries(folder, out_dir, options)
+    pairs = [e for e in entries if e.problem is None]
+    job = PairJob(
+        out_dir, options.formats, options.baseline_m, options.model, options.threads,
+        keep_evidence=options.same_rig, pinhole=options.pinhole, lines=options.lines, exif=options.exif,
+        rotate=options.rotate,
+    )  # fmt: skip
+    summary = BatchSummary([])
+    with PairProgress(options.progress) as bar:
+        unmatched = {e.name: PairOutcome(e.name, e.left, e.right, "failed", e.problem) for e in entries
+                     if e.problem is not None}  # fmt: skip
+        for outcome in unmatched.values():
+            bar.line(f"unmatched: {outcome.error}")
+        done: list[PairOutcome | None] = [None] * len(pairs)
+        interrupted = _calibrate(pairs, done, job, options, bar, stop, summary)
+        ran = {
+            e.name: o or PairOutcome(e.name, e.left, e.right, "not run")
+            for e, o in zip(pairs, done, strict=True)
+        }
+        summary.outcomes = [{**unmatched, **ran}[e.name] for e in entries]
+    stopped = interrupted is not None or (
+        stop is not None and stop.requested
+        and (summary.not_run > 0 or (options.same_rig and summary.rig is None))
+    )  # fmt: skip
+    if stopped:
+        summary.interrupted = (stop.name if stop is not None else None) or "SIGINT"
+    try:
+        with protected():  # a signal now waits until the rig and the summaries are written
+            _write_results(folder, out_dir, options, summary, stopped)
+    except KeyboardInterrupt as error:  # everything is written: nothing more to stop
+        if stop is None:
+            raise
+        interrupted = interrupted or error
+    if interrupted is not None and stop is None:
+        raise interrupted
+    return summary
+
+
+def _entries(folder: Path, out_dir: Path, options: BatchOptions) -> list:
+    """The pairs of ``folder`` (this shard's), once ``out_dir`` is known to take their results."""
+    if options.resume and options.overwrite:
         raise StereoGeoError("--resume keeps the results in the output folder and --overwrite replaces them: "
                              "choose one")  # fmt: skip
-    entries = select_shard(discover_pairs(folder), shard)
-    if same_rig and any(e.name == RIG_FOLDER for e in entries):
+    entries = select_shard(discover_pairs(folder), options.shard)
+    if options.same_rig and any(e.name == RIG_FOLDER for e in entries):
         raise StereoGeoError(f"--same-rig writes {out_dir / RIG_FOLDER}/, but a pair is named {RIG_FOLDER!r}")
-    pairs = [e for e in entries if e.problem is None]
-    if not (resume or overwrite):
-        found = resuming.existing_results(
-            out_dir, [e.name for e in pairs], summary_stem(shard), RIG_FOLDER if same_rig else None
-        )
+    names = [e.name for e in entries if e.problem is None]
+    rig = RIG_FOLDER if options.same_rig else None
+    if not (options.resume or options.overwrite):
+        found = resuming.existing_results(out_dir, names, summary_stem(options.shard), rig)
         if found:
             folders = sum(p.is_dir() for p in found)
             what = ", ".join(
@@ -183,95 +201,84 @@ def run_batch(
                 f"{out_dir} already holds results ({what}): add --resume to keep them and calibrate only the "
                 "pairs not done, or --overwrite to replace them"
             )
-    if resume or overwrite:  # what a run killed mid-write left behind goes first
-        resuming.remove_leftovers(
-            out_dir, [e.name for e in pairs], summary_stem(shard), RIG_FOLDER if same_rig else None
-        )
+    else:  # what a run killed mid-write left behind goes first
+        resuming.remove_leftovers(out_dir, names, summary_stem(options.shard), rig)
+    return entries
+
+
+def _calibrate(pairs, done, job: PairJob, options: BatchOptions, bar, stop, summary) -> BaseException | None:
+    """The pairs kept from an earlier run (``--resume``), the others calibrated and the joint calibration,
+    into ``done`` (the pairs' outcomes, None for a pair not run) and ``summary``. Returns the
+    ``KeyboardInterrupt`` that stopped it at once (a second signal, or Ctrl-C without ``stop``), or None."""
     calibrator_cache: list = []
 
     def calibrator():  # the in-process session, made once (and only when needed)
         if not calibrator_cache:
             from stereogeo_cli.pipeline import Calibrator
 
-            calibrator_cache.append(Calibrator(model, threads=threads, conf=calibrator_conf(pinhole, lines)))
+            conf = calibrator_conf(options.pinhole, options.lines)
+            calibrator_cache.append(Calibrator(options.model, threads=options.threads, conf=conf))
         return calibrator_cache[0]
 
-    job = PairJob(
-        out_dir, formats, baseline_m, model, threads, keep_evidence=same_rig, pinhole=pinhole, lines=lines,
-        exif=exif, rotate=rotate,
-    )  # fmt: skip
-    outcomes_by_name: dict[str, PairOutcome] = {}
-    done: list[PairOutcome | None] = [None] * len(pairs)
-    summary = BatchSummary([])
-    interrupted: BaseException | None = None
-    with PairProgress(progress) as bar:
-        for e in entries:
-            if e.problem is not None:
-                bar.line(f"unmatched: {e.problem}")
-                outcomes_by_name[e.name] = PairOutcome(e.name, e.left, e.right, "failed", e.problem)
+    try:
+        if options.resume:
+            summary.resumed = _resumed(pairs, done, job.out_dir, options, stop)
+            bar.line(f"resuming: {summary.resumed} of {plural(len(pairs), 'pair')} taken from {job.out_dir}")
+        todo = [i for i, o in enumerate(done) if o is None]
+        if options.workers <= 1 and todo and not (stop is not None and stop.requested):
+            calibrator()  # a bad model fails here, before any pair
+        bar.stage("calibrating", len(todo))
+        computed: list[PairOutcome | None] = [None] * len(todo)
         try:
-            if resume:
-                options = resuming.pair_options(
-                    resuming.model_identity(model), baseline_m, pinhole, lines, exif, rotate
-                )
-                for i, e in enumerate(pairs):
-                    if stop is not None and stop.requested:
-                        break
-                    kept = resuming.completed_pair(
-                        out_dir / e.name, (e.left, e.right), options, formats, same_rig
-                    )
-                    if kept is not None:
-                        report, time_ms, evidence = kept
-                        done[i] = PairOutcome(e.name, e.left, e.right, "ok", "", report, time_ms, evidence)
-                summary.resumed = sum(o is not None for o in done)
-                bar.line(f"resuming: {summary.resumed} of {plural(len(pairs), 'pair')} taken from {out_dir}")
-            todo = [i for i, o in enumerate(done) if o is None]
-            if workers <= 1 and todo and not (stop is not None and stop.requested):
-                calibrator()  # a bad model fails here, before any pair
-            bar.stage("calibrating", len(todo))
-            computed: list[PairOutcome | None] = [None] * len(todo)
+            run_pass([pairs[i] for i in todo], job, options.workers, calibrator, bar, stop, computed)
+        finally:
+            for i, outcome in zip(todo, computed, strict=True):
+                done[i] = outcome
+        if options.same_rig and all(o is not None for o in done):
             try:
-                run_pass([pairs[i] for i in todo], job, workers, calibrator, bar, stop, computed)
-            finally:
-                for i, outcome in zip(todo, computed, strict=True):
-                    done[i] = outcome
-            if same_rig and all(o is not None for o in done):
-                try:
-                    summary.rig = same_rig_calibration(done, job, workers, calibrator, bar, baseline_m, stop)
-                except StereoGeoError as error:
-                    summary.rig_error = error
-        except KeyboardInterrupt as error:  # a second signal (Interrupted), or Ctrl-C without ``stop``
-            interrupted = error
-        for e, outcome in zip(pairs, done, strict=True):
-            outcomes_by_name[e.name] = outcome or PairOutcome(e.name, e.left, e.right, "not run")
-        summary.outcomes = [outcomes_by_name[e.name] for e in entries]
+                summary.rig = same_rig_calibration(
+                    done, job, options.workers, calibrator, bar, options.baseline_m, stop
+                )
+            except StereoGeoError as error:
+                summary.rig_error = error
+    except KeyboardInterrupt as error:
+        return error
+    return None
+
+
+def _resumed(pairs, done, out_dir: Path, options: BatchOptions, stop) -> int:
+    """Put into ``done`` each pair whose folder holds a complete calibration made as this run would make
+    it (:func:`stereogeo_cli.batch.resume.completed_pair`); returns how many."""
+    recorded = resuming.pair_options(
+        resuming.model_identity(options.model), options.baseline_m, options.pinhole, options.lines,
+        options.exif, options.rotate,
+    )  # fmt: skip
+    for i, e in enumerate(pairs):
+        if stop is not None and stop.requested:
+            break
+        kept = resuming.completed_pair(out_dir / e.name, (e.left, e.right), recorded, options.formats,
+                                       options.same_rig)  # fmt: skip
+        if kept is not None:
+            report, time_ms, evidence = kept
+            done[i] = PairOutcome(e.name, e.left, e.right, "ok", "", report, time_ms, evidence)
+    return sum(o is not None for o in done)
+
+
+def _write_results(folder: Path, out_dir: Path, options: BatchOptions, summary: BatchSummary, stopped: bool):
+    """The joint calibration's folder and the summaries, into ``summary.written``."""
     from stereogeo_cli.io import write_calibration
     from stereogeo_cli.io.atomic import write_files_atomically
 
-    stopped = interrupted is not None or (
-        stop is not None and stop.requested and (summary.not_run > 0 or (same_rig and summary.rig is None))
+    rig_entry = None
+    if summary.rig is not None:
+        summary.written += write_calibration(out_dir / RIG_FOLDER, summary.rig, options.formats)
+        rig_entry = {"folder": RIG_FOLDER, "report": json_safe(summary.rig.to_report())}
+    elif summary.rig_error is not None:
+        rig_entry = {"folder": None, "error": str(summary.rig_error)}
+    elif options.same_rig and stopped:
+        rig_entry = {"folder": None, "error": f"not run: interrupted by {summary.interrupted}"}
+    files = summary_files(
+        summary.outcomes, folder, options.shard, rig_entry, summary.interrupted, summary.resumed
     )
-    if stopped:
-        summary.interrupted = (stop.name if stop is not None else None) or "SIGINT"
-    try:
-        with protected():  # a signal now waits until the rig and the summaries are written
-            rig_entry = None
-            if summary.rig is not None:
-                summary.written += write_calibration(out_dir / RIG_FOLDER, summary.rig, formats)
-                rig_entry = {"folder": RIG_FOLDER, "report": json_safe(summary.rig.to_report())}
-            elif summary.rig_error is not None:
-                rig_entry = {"folder": None, "error": str(summary.rig_error)}
-            elif same_rig and stopped:
-                rig_entry = {"folder": None, "error": f"not run: interrupted by {summary.interrupted}"}
-            files = summary_files(
-                summary.outcomes, folder, shard, rig_entry, summary.interrupted, summary.resumed
-            )
-            summary.json_text = files[next(k for k in files if k.endswith(".json"))]
-            summary.written += write_files_atomically(out_dir, files)
-    except KeyboardInterrupt as error:  # everything is written: nothing more to stop
-        if stop is None:
-            raise
-        interrupted = interrupted or error
-    if interrupted is not None and stop is None:
-        raise interrupted
-    return summary
+    summary.json_text = files[next(k for k in files if k.endswith(".json"))]
+    summary.written += write_files_atomically(out_dir, files)

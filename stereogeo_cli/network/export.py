@@ -154,48 +154,18 @@ def export_onnx(
     """
     import onnx
 
-    for h, w in parity_sizes:
-        if h % INPUT_MULTIPLE or w % INPUT_MULTIPLE:
-            raise ValueError(f"parity size {h}x{w} is not a multiple of {INPUT_MULTIPLE}")
+    _check_parity_sizes(parity_sizes)
     model, checkpoint = _resolve_model(checkpoint_or_model)
     was_training = model.training
     model.eval()
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    metadata = network_metadata(
-        {k: v for k, v in model.conf.items() if k != "pretrained"},
-        model_version or str(checkpoint.get("model_version", "untrained")),
-        training_data or str(checkpoint.get("training_data", "none (untrained)")),
-        int(checkpoint.get("step", 0)),
-        int(checkpoint.get("input_short_side", INPUT_SHORT_SIDE)),  # the size the model was trained at
-    )
-    metadata.update({k: str(v) for k, v in (extra_metadata or {}).items()})
-    size_left, size_right = parity_sizes[0], parity_sizes[-1]
-    generator = torch.Generator().manual_seed(0)  # leaves the caller's (e.g. training's) RNG untouched
-    example = (
-        torch.rand(1, 3, *size_left, generator=generator),
-        torch.rand(1, 3, *size_right, generator=generator),
-    )
-    dynamic_axes: dict[str, dict[int, str]] = {
-        view: {0: "batch", 2: f"{view}_height", 3: f"{view}_width"} for view in ("left", "right")
-    }
+    metadata = _export_metadata(model, checkpoint, model_version, training_data, extra_metadata)
+    example = _example_inputs(parity_sizes)
     fd, tmp = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.", suffix=".tmp")
     os.close(fd)
     try:
-        with warnings.catch_warnings():  # the TorchScript exporter's deprecation and constant-folding notes
-            warnings.simplefilter("ignore")
-            torch.onnx.export(
-                model,
-                example,
-                tmp,
-                dynamo=False,
-                external_data=False,
-                opset_version=opset,
-                input_names=["left", "right"],
-                output_names=list(model.output_names()),
-                dynamic_axes=dynamic_axes,
-                do_constant_folding=True,
-            )
+        _trace(model, example, tmp, opset)
         proto = onnx.load(tmp)
         _set_output_shapes(proto)
         proto.doc_string = "StereoGeoNet: perspective fields of both views of a stereo pair and the rig pose"
@@ -203,13 +173,7 @@ def export_onnx(
         onnx.helper.set_model_props(proto, metadata)
         onnx.checker.check_model(proto)
         onnx.save(proto, tmp)
-        errors = parity_errors(model, tmp, parity_sizes)
-        worst = max(errors, key=lambda name: errors[name])
-        if errors[worst] > atol:
-            raise StereoGeoError(
-                f"ONNX parity check failed: {worst} differs from torch by {errors[worst]:.2e} > {atol:.0e}",
-                exit_code=EXIT_INTERNAL,
-            )
+        errors = _checked_parity(model, tmp, parity_sizes, atol)
         give_default_permissions(tmp)
         os.replace(tmp, out_path)
     finally:
@@ -221,3 +185,75 @@ def export_onnx(
         "parity_sizes": list(parity_sizes),
         "metadata": metadata,
     }
+
+
+def _check_parity_sizes(parity_sizes: Sequence[tuple[int, int]]) -> None:
+    """Refuse a parity size whose height or width is not a multiple of ``INPUT_MULTIPLE``."""
+    for h, w in parity_sizes:
+        if h % INPUT_MULTIPLE or w % INPUT_MULTIPLE:
+            raise ValueError(f"parity size {h}x{w} is not a multiple of {INPUT_MULTIPLE}")
+
+
+def _export_metadata(
+    model: StereoGeoNet,
+    checkpoint: dict[str, Any],
+    model_version: str | None,
+    training_data: str | None,
+    extra_metadata: dict[str, str] | None,
+) -> dict[str, str]:
+    """The model's metadata properties, from the arguments where given, else from the checkpoint."""
+    metadata = network_metadata(
+        {k: v for k, v in model.conf.items() if k != "pretrained"},
+        model_version or str(checkpoint.get("model_version", "untrained")),
+        training_data or str(checkpoint.get("training_data", "none (untrained)")),
+        int(checkpoint.get("step", 0)),
+        int(checkpoint.get("input_short_side", INPUT_SHORT_SIDE)),  # the size the model was trained at
+    )
+    metadata.update({k: str(v) for k, v in (extra_metadata or {}).items()})
+    return metadata
+
+
+def _example_inputs(parity_sizes: Sequence[tuple[int, int]]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Random (left, right) images at the first and the last parity size, to trace the graph with."""
+    size_left, size_right = parity_sizes[0], parity_sizes[-1]
+    generator = torch.Generator().manual_seed(0)  # leaves the caller's (e.g. training's) RNG untouched
+    return (
+        torch.rand(1, 3, *size_left, generator=generator),
+        torch.rand(1, 3, *size_right, generator=generator),
+    )
+
+
+def _trace(model: StereoGeoNet, example: tuple[torch.Tensor, torch.Tensor], path: str, opset: int) -> None:
+    """Write the model traced on ``example`` to ``path`` as ONNX, every batch size, height and width
+    dynamic."""
+    dynamic_axes: dict[str, dict[int, str]] = {
+        view: {0: "batch", 2: f"{view}_height", 3: f"{view}_width"} for view in ("left", "right")
+    }
+    with warnings.catch_warnings():  # the TorchScript exporter's deprecation and constant-folding notes
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            model,
+            example,
+            path,
+            dynamo=False,
+            external_data=False,
+            opset_version=opset,
+            input_names=["left", "right"],
+            output_names=list(model.output_names()),
+            dynamic_axes=dynamic_axes,
+            do_constant_folding=True,
+        )
+
+
+def _checked_parity(
+    model: StereoGeoNet, onnx_path: str, parity_sizes: Sequence[tuple[int, int]], atol: float
+) -> dict[str, float]:
+    """The :func:`parity_errors` of the written graph; a StereoGeoError when the worst exceeds ``atol``."""
+    errors = parity_errors(model, onnx_path, parity_sizes)
+    worst = max(errors, key=lambda name: errors[name])
+    if errors[worst] > atol:
+        raise StereoGeoError(
+            f"ONNX parity check failed: {worst} differs from torch by {errors[worst]:.2e} > {atol:.0e}",
+            exit_code=EXIT_INTERNAL,
+        )
+    return errors

@@ -220,10 +220,26 @@ def compute_losses(
     ``teacher``: a frozen teacher's outputs on the batch, held to on its pure-rotation pairs
     (``teacher_weight``)."""
     conf = {**default_conf, **(conf or {})}
-    losses: dict[str, torch.Tensor] = {}
-    height, width = batch["left"].shape[-2:]
     has_gravity = torch.isfinite(batch["gravity"]).all(-1)  # [B x 2]
-    terms = {k: [] for k in ("up", "latitude", "confidence", "camera", "photo")}
+    losses = _field_losses(out, batch, conf, with_refiner, has_gravity)
+    losses.update(_pose_losses(out, batch, conf))
+    if "pose_infinity" in out and "infinity_xy" in batch:
+        losses.update(match_losses(out, batch, conf))
+    losses.update(_depth_loss(out, batch, conf))
+    if teacher is not None and conf["teacher_weight"] > 0:
+        losses["teacher"] = teacher_loss(out, teacher, _teacher_mask(batch, has_gravity))
+    losses["total"] = _weighted_total(losses, conf)
+    return losses
+
+
+def _field_losses(
+    out: dict, batch: dict, conf: dict, with_refiner: bool, has_gravity: torch.Tensor
+) -> dict[str, torch.Tensor]:
+    """The up, latitude, confidence, camera and photo terms, each the mean over the views that have it."""
+    height, width = batch["left"].shape[-2:]
+    terms: dict[str, list[torch.Tensor]] = {
+        k: [] for k in ("up", "latitude", "confidence", "camera", "photo")
+    }
     for v, view in enumerate(("left", "right")):
         focal_only = ~has_gravity[:, v] & torch.isfinite(batch["focal"][:, v])
         if with_refiner and conf["photo_weight"] > 0 and focal_only.any():
@@ -233,32 +249,50 @@ def compute_losses(
             fov_gt = 2 * torch.atan(height / (2 * batch["focal"][:, v][focal_only]))
             terms["photo"].append((fov_hat - fov_gt).abs().mean())
         mask = has_gravity[:, v]
-        if not mask.any():
-            continue
-        g = batch["gravity"][:, v][mask]
-        f = batch["focal"][:, v][mask]
-        up_gt, lat_gt = ground_truth_fields(g, f, width, height)
-        up_err = (out[f"{view}_up"][mask] - up_gt).abs().sum(1)
-        lat_err = (out[f"{view}_latitude"][mask] - lat_gt).abs()
-        terms["up"].append(up_err.mean())
-        terms["latitude"].append(lat_err.mean())
-        scale = conf["confidence_scale"]
-        for name, err in (("up_confidence", up_err), ("latitude_confidence", lat_err)):
-            target = torch.exp(-err.detach() / scale)
-            terms["confidence"].append(
-                F.binary_cross_entropy(out[f"{view}_{name}"][mask].clamp(1e-6, 1 - 1e-6), target)
-            )
-        if with_refiner and conf["camera_weight"] > 0:
-            sub = {k: t[mask] for k, t in out.items() if k.startswith(view)}
-            g_hat, f_hat = refine_views(sub, view, height, width, conf)
-            r_hat, p_hat, fov_hat = roll_pitch_vfov(g_hat, f_hat, height)
-            r_gt, p_gt, fov_gt = roll_pitch_vfov(g, f, height)
-            camera = _angle_diff(r_hat, r_gt) + (p_hat - p_gt).abs() + (fov_hat - fov_gt).abs()
-            terms["camera"].append(camera.mean())
-    for name, values in terms.items():
-        if values:
-            losses[name] = torch.stack(values).mean()
+        if mask.any():
+            _gravity_terms(terms, out, batch, conf, v, mask, with_refiner)
+    return {name: torch.stack(values).mean() for name, values in terms.items() if values}
 
+
+def _gravity_terms(
+    terms: dict[str, list[torch.Tensor]],
+    out: dict,
+    batch: dict,
+    conf: dict,
+    v: int,
+    mask: torch.Tensor,
+    with_refiner: bool,
+) -> None:
+    """Append view ``v``'s field and confidence terms on the samples of ``mask`` (those with gravity), and
+    its camera term after the unrolled refiner."""
+    view = ("left", "right")[v]
+    height, width = batch["left"].shape[-2:]
+    g = batch["gravity"][:, v][mask]
+    f = batch["focal"][:, v][mask]
+    up_gt, lat_gt = ground_truth_fields(g, f, width, height)
+    up_err = (out[f"{view}_up"][mask] - up_gt).abs().sum(1)
+    lat_err = (out[f"{view}_latitude"][mask] - lat_gt).abs()
+    terms["up"].append(up_err.mean())
+    terms["latitude"].append(lat_err.mean())
+    scale = conf["confidence_scale"]
+    for name, err in (("up_confidence", up_err), ("latitude_confidence", lat_err)):
+        target = torch.exp(-err.detach() / scale)
+        terms["confidence"].append(
+            F.binary_cross_entropy(out[f"{view}_{name}"][mask].clamp(1e-6, 1 - 1e-6), target)
+        )
+    if with_refiner and conf["camera_weight"] > 0:
+        sub = {k: t[mask] for k, t in out.items() if k.startswith(view)}
+        g_hat, f_hat = refine_views(sub, view, height, width, conf)
+        r_hat, p_hat, fov_hat = roll_pitch_vfov(g_hat, f_hat, height)
+        r_gt, p_gt, fov_gt = roll_pitch_vfov(g, f, height)
+        camera = _angle_diff(r_hat, r_gt) + (p_hat - p_gt).abs() + (fov_hat - fov_gt).abs()
+        terms["camera"].append(camera.mean())
+
+
+def _pose_losses(out: dict, batch: dict, conf: dict) -> dict[str, torch.Tensor]:
+    """The pose head's rotation and translation terms, and its epipolar term where it has one."""
+    losses: dict[str, torch.Tensor] = {}
+    height, width = batch["left"].shape[-2:]
     # Huber losses divided by their threshold (smooth L1): a unit gradient for large errors, so the
     # pose terms (radians, metres, often < 0.1) are not dwarfed by the field terms.
     pose = batch["has_pose"]
@@ -284,30 +318,41 @@ def compute_losses(
             out["pose_match_left"][trans], out["pose_match_right"][trans], batch["focal"][trans],
             batch["R"][trans], batch["T"][trans], min(height, width) / 2, conf["epipolar_scale"],
         )  # fmt: skip
-    if "pose_infinity" in out and "infinity_xy" in batch:
-        losses.update(match_losses(out, batch, conf))
+    return losses
+
+
+def _depth_loss(out: dict, batch: dict, conf: dict) -> dict[str, torch.Tensor]:
+    """``depth``: the depth head's Laplace negative log-likelihood over the cells with a true depth, when
+    ``depth_weight`` is not 0 and the batch has depth maps (empty otherwise)."""
     if conf["depth_weight"] > 0 and "left_depth" not in out:
         raise ValueError(
             "the depth loss (depth_weight > 0) needs a model with a depth head (depth_head: true)"
         )
-    if conf["depth_weight"] > 0 and "depth_left" in batch:
-        nll = []
-        for view in ("left", "right"):
-            target = batch[f"depth_{view}"]
-            valid = torch.isfinite(target)
-            if valid.any():
-                spread = out[f"{view}_depth_spread"][valid].clamp(-5.0, 3.0)
-                error = (out[f"{view}_depth"][valid] - target[valid]).abs()
-                nll.append((error * torch.exp(-spread) + spread).mean())
-        if nll:
-            losses["depth"] = torch.stack(nll).mean()
-    if teacher is not None and conf["teacher_weight"] > 0:
-        # the pure-rotation pairs with gravity: the crops of real panoramas (not photographs, which are
-        # learnt from their own truth, nor pairs of the train setting teacher_free_data)
-        held = ~batch["has_translation"] & has_gravity.all(-1)
-        if "teacher_free" in batch:
-            held = held & ~batch["teacher_free"]
-        losses["teacher"] = teacher_loss(out, teacher, held)
+    if not (conf["depth_weight"] > 0 and "depth_left" in batch):
+        return {}
+    nll = []
+    for view in ("left", "right"):
+        target = batch[f"depth_{view}"]
+        valid = torch.isfinite(target)
+        if valid.any():
+            spread = out[f"{view}_depth_spread"][valid].clamp(-5.0, 3.0)
+            error = (out[f"{view}_depth"][valid] - target[valid]).abs()
+            nll.append((error * torch.exp(-spread) + spread).mean())
+    return {"depth": torch.stack(nll).mean()} if nll else {}
+
+
+def _teacher_mask(batch: dict, has_gravity: torch.Tensor) -> torch.Tensor:
+    """The samples held to the teacher [B]: the pure-rotation pairs with gravity, the crops of real
+    panoramas (not photographs, which are learnt from their own truth, nor pairs of the train setting
+    teacher_free_data)."""
+    held = ~batch["has_translation"] & has_gravity.all(-1)
+    if "teacher_free" in batch:
+        held = held & ~batch["teacher_free"]
+    return held
+
+
+def _weighted_total(losses: dict[str, torch.Tensor], conf: dict) -> torch.Tensor:
+    """The sum of the loss terms, each times its weight, in the order of ``losses``."""
     weights = {
         "teacher": conf["teacher_weight"],
         "epipolar": conf["epipolar_weight"], "match": conf["match_weight"], "vote": conf["vote_weight"],
@@ -316,5 +361,4 @@ def compute_losses(
         "camera": conf["camera_weight"], "photo": conf["photo_weight"], "rotation": conf["rotation_weight"],
         "translation": conf["translation_weight"],
     }  # fmt: skip
-    losses["total"] = sum(weights[k] * v for k, v in losses.items())
-    return losses
+    return sum(weights[k] * v for k, v in losses.items())

@@ -13,6 +13,7 @@ import math
 import os
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -195,19 +196,6 @@ def validate(
     the median and 68th percentile of the pose head's errors: rotation and translation direction (degrees),
     translation ``|T̂ - T| / |T|`` and length ``| |T̂| / |T| - 1 |`` (shares of the baseline).
     """
-    from stereogeo_cli.geometry import (
-        apply_resize_crop,
-        gravity_angle,
-        resize_crop_for_network,
-        roll_pitch_from_gravity,
-        rotation_error,
-        vfov_from_focal,
-    )
-    from stereogeo_cli.geometry import quaternion_to_rotation as quat_np
-    from stereogeo_cli.metrics import summarize
-    from stereogeo_cli.network.runtime import average_with_mirrored, cell_pixel_coordinates
-    from stereogeo_cli.refine import refine_camera
-
     was_training = model.training
     device = next(model.parameters()).device
     model.eval()
@@ -216,48 +204,82 @@ def validate(
     }
     for i in range(min(count, len(val))):
         left, right, calib = val[i]
-        tensors, rcs = [], []
-        for image in (left, right):
-            rc = resize_crop_for_network(image.shape[1], image.shape[0], short_side)
-            cut = apply_resize_crop(image, rc)
-            tensors.append(torch.from_numpy(np.ascontiguousarray(cut.transpose(2, 0, 1)))[None].float() / 255)
-            rcs.append(rc)
-        tensors = [t.to(device) for t in tensors]
-        raw = {k: v.cpu().numpy() for k, v in model(*tensors).items()}
-        if (
-            flip
-        ):  # as calibrate's flip option: fields averaged with the mirrored pair's (pose: the plain run's)
-            mirrored = {k: v.cpu().numpy() for k, v in model(*(t.flip(-1) for t in tensors)).items()}
-            raw = average_with_mirrored(raw, mirrored)
-        out = {k: v[0].astype(float) for k, v in raw.items()}
-        for view, rc in zip(("left", "right"), rcs, strict=True):
-            cam = calib[view]
-            if cam.get("gravity_up") is None:
-                continue
-            h, w = out[f"{view}_latitude"].shape
-            fit = refine_camera(
-                out[f"{view}_up"].transpose(1, 2, 0), out[f"{view}_latitude"],
-                out[f"{view}_up_confidence"], out[f"{view}_latitude_confidence"],
-                image_size=rc.out_size, pixel_xy=cell_pixel_coordinates(h, w, OUTPUT_STRIDE),
-            )  # fmt: skip
-            fit = fit.in_original_pixels(rc)
-            roll, pitch = np.degrees(roll_pitch_from_gravity(np.asarray(cam["gravity_up"])))
-            K = np.asarray(cam["K"])
-            vfov = np.degrees(vfov_from_focal(K[1, 1], cam["height"]))
-            errors["roll"].append(abs((fit.roll_deg - roll + 180) % 360 - 180))
-            errors["pitch"].append(abs(fit.pitch_deg - pitch))
-            errors["vfov"].append(abs(fit.vfov_deg - vfov))
-        if calib.get("R") is not None:
-            errors["rotation"].append(
-                np.degrees(rotation_error(quat_np(out["quaternion"]), np.asarray(calib["R"])))
-            )
-            T = np.asarray(calib["T"], dtype=float)
-            t_hat, length = out["translation"], float(np.linalg.norm(T))
-            if length > 1e-6:
-                errors["translation"].append(float(np.linalg.norm(t_hat - T) / length))
-                errors["direction"].append(float(np.degrees(gravity_angle(t_hat, T))))
-                errors["scale"].append(abs(float(np.linalg.norm(t_hat)) / length - 1.0))
+        out, rcs = _validation_outputs(model, left, right, short_side, flip, device)
+        _camera_errors(out, calib, rcs, errors)
+        _pose_errors(out, calib, errors)
     model.train(was_training)
+    return _validation_metrics(errors)
+
+
+def _validation_outputs(
+    model: StereoGeoNet, left: np.ndarray, right: np.ndarray, short_side: int, flip: bool, device
+) -> tuple[dict[str, np.ndarray], list]:
+    """The network's outputs (first batch item, float64) on a pair cut as the product cuts it, and each
+    view's resize/crop."""
+    from stereogeo_cli.geometry import apply_resize_crop, resize_crop_for_network
+    from stereogeo_cli.network.runtime import average_with_mirrored
+
+    tensors, rcs = [], []
+    for image in (left, right):
+        rc = resize_crop_for_network(image.shape[1], image.shape[0], short_side)
+        cut = apply_resize_crop(image, rc)
+        tensors.append(torch.from_numpy(np.ascontiguousarray(cut.transpose(2, 0, 1)))[None].float() / 255)
+        rcs.append(rc)
+    tensors = [t.to(device) for t in tensors]
+    raw = {k: v.cpu().numpy() for k, v in model(*tensors).items()}
+    if flip:  # as calibrate's flip option: fields averaged with the mirrored pair's (pose: the plain run's)
+        mirrored = {k: v.cpu().numpy() for k, v in model(*(t.flip(-1) for t in tensors)).items()}
+        raw = average_with_mirrored(raw, mirrored)
+    return {k: v[0].astype(float) for k, v in raw.items()}, rcs
+
+
+def _camera_errors(
+    out: dict[str, np.ndarray], calib: dict, rcs: list, errors: dict[str, list[float]]
+) -> None:
+    """Append the roll, pitch and vFoV errors (degrees) of the refined cameras of the views with gravity."""
+    from stereogeo_cli.geometry import roll_pitch_from_gravity, vfov_from_focal
+    from stereogeo_cli.network.runtime import cell_pixel_coordinates
+    from stereogeo_cli.refine import refine_camera
+
+    for view, rc in zip(("left", "right"), rcs, strict=True):
+        cam = calib[view]
+        if cam.get("gravity_up") is None:
+            continue
+        h, w = out[f"{view}_latitude"].shape
+        fit = refine_camera(
+            out[f"{view}_up"].transpose(1, 2, 0), out[f"{view}_latitude"],
+            out[f"{view}_up_confidence"], out[f"{view}_latitude_confidence"],
+            image_size=rc.out_size, pixel_xy=cell_pixel_coordinates(h, w, OUTPUT_STRIDE),
+        )  # fmt: skip
+        fit = fit.in_original_pixels(rc)
+        roll, pitch = np.degrees(roll_pitch_from_gravity(np.asarray(cam["gravity_up"])))
+        K = np.asarray(cam["K"])
+        vfov = np.degrees(vfov_from_focal(K[1, 1], cam["height"]))
+        errors["roll"].append(abs((fit.roll_deg - roll + 180) % 360 - 180))
+        errors["pitch"].append(abs(fit.pitch_deg - pitch))
+        errors["vfov"].append(abs(fit.vfov_deg - vfov))
+
+
+def _pose_errors(out: dict[str, np.ndarray], calib: dict, errors: dict[str, list[float]]) -> None:
+    """Append the pose head's rotation error and, for a rig with a baseline, its translation errors."""
+    from stereogeo_cli.geometry import gravity_angle, rotation_error
+    from stereogeo_cli.geometry import quaternion_to_rotation as quat_np
+
+    if calib.get("R") is None:
+        return
+    errors["rotation"].append(np.degrees(rotation_error(quat_np(out["quaternion"]), np.asarray(calib["R"]))))
+    T = np.asarray(calib["T"], dtype=float)
+    t_hat, length = out["translation"], float(np.linalg.norm(T))
+    if length > 1e-6:
+        errors["translation"].append(float(np.linalg.norm(t_hat - T) / length))
+        errors["direction"].append(float(np.degrees(gravity_angle(t_hat, T))))
+        errors["scale"].append(abs(float(np.linalg.norm(t_hat)) / length - 1.0))
+
+
+def _validation_metrics(errors: dict[str, list[float]]) -> dict[str, float]:
+    """The summary of the collected errors that :func:`validate` returns."""
+    from stereogeo_cli.metrics import summarize
+
     metrics: dict[str, float] = {}
     for name in ("roll", "pitch", "vfov"):
         for key, value in summarize(np.array(errors[name]), min_error=1.0).items():
@@ -301,6 +323,78 @@ class _Log:
         print(f"[{event}] {shown}", file=sys.stderr, flush=True)
 
 
+@dataclass
+class _Run:
+    """One training run's model, optimiser and counters, shared by its steps, validations and checkpoints."""
+
+    conf: dict
+    rank: int
+    world: int
+    out: Path
+    log: _Log
+    model: StereoGeoNet
+    net: torch.nn.Module
+    optimizer: torch.optim.Optimizer
+    trained: list
+    prefixes: tuple[str, ...]
+    device: torch.device
+    teacher: StereoGeoNet | None
+    teacher_sha256: str | None
+    step: int
+    best: float
+    training_data: str = ""
+    version: str = ""
+    metrics: dict[str, float] = field(default_factory=dict)
+
+    def save(self, path: Path, metrics: dict | None = None) -> None:
+        """Write a checkpoint of the run to ``path`` (rank 0 only)."""
+        if self.rank != 0:
+            return
+        save_checkpoint(
+            path, self.model, self.step, optimizer=self.optimizer.state_dict(), best=self.best,
+            metrics=metrics or {}, train_conf=json.loads(json.dumps(self.conf, default=str)),
+            training_data=self.training_data, model_version=self.version,
+            input_short_side=int(self.conf["input_short_side"]),
+            **({"teacher_sha256": self.teacher_sha256} if self.teacher_sha256 else {}),
+        )  # fmt: skip
+
+    def train_step(self, batch: dict) -> tuple[dict, bool]:
+        """One optimiser step on ``batch`` (skipped where the gradient is not finite); returns the loss
+        terms and whether the batch was a wide one."""
+        conf = self.conf
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr_at(self.step, conf)
+        outputs = self.net(batch["left"], batch["right"])
+        held, is_wide = None, int(batch["size_index"][0]) >= len(conf["sizes"])
+        # A wide batch has no teacher: wide frames are what the fine-tune corrects the teacher's reading
+        # of, so its panorama crops are held to their ground truth alone (docs/network.md, "Wide frames
+        # in training").
+        if self.teacher is not None and not is_wide:
+            with torch.no_grad():
+                held = self.teacher(batch["left"], batch["right"])
+        losses = compute_losses(
+            outputs, batch, conf["loss"], with_refiner=self.step >= conf["refiner_start"], teacher=held
+        )
+        self.optimizer.zero_grad(set_to_none=True)
+        losses["total"].backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(self.trained, conf["clip_grad"])
+        if torch.isfinite(grad_norm):
+            self.optimizer.step()
+        self.step += 1
+        return losses, is_wide
+
+    def validate_and_keep_best(self, val: FolderPairs) -> None:
+        """Validate, log the metrics, and write OUT/best.pt when the camera errors are the lowest yet."""
+        conf = self.conf
+        self.metrics = validate(self.model, val, conf["val_count"], int(conf["input_short_side"]))
+        set_training(self.model, self.prefixes)
+        self.log("val", step=self.step, **self.metrics)
+        score = self.metrics["roll_median"] + self.metrics["pitch_median"] + self.metrics["vfov_median"]
+        if score < self.best:
+            self.best = score
+            self.save(self.out / "best.pt", self.metrics)
+
+
 def train(conf: dict) -> dict:
     """Train; returns the last validation metrics (empty without a validation set)."""
     conf = {**default_conf, **conf}
@@ -310,8 +404,49 @@ def train(conf: dict) -> dict:
     out = Path(conf["out"])
     out.mkdir(parents=True, exist_ok=True)
     log = _Log(out, rank == 0)
-    latest = out / "latest.pt"
+    run = _prepare_run(conf, rank, world, out, log)
+    dataset, loader, has_wide = _training_loader(conf, rank, world, run.step)
+    val = FolderPairs(conf["val"]) if conf["val"] and rank == 0 else None
+    run.training_data = _training_data_description(conf)
+    run.version = conf["model_version"] or out.name
+    log(
+        "start",
+        step=run.step,
+        steps=conf["steps"],
+        pairs=len(dataset),
+        world=world,
+        batch_size=conf["batch_size"],
+    )
+    started = _run_steps(run, loader, val, has_wide)
+    if conf.get("dump_replica"):
+        torch.save(run.model.state_dict(), Path(conf["dump_replica"]) / f"rank{rank}.pt")
+    log("done", step=run.step, seconds=time.monotonic() - started)
+    if world > 1:
+        dist.barrier()
+        dist.destroy_process_group()
+    return run.metrics
 
+
+def _prepare_run(conf: dict, rank: int, world: int, out: Path, log: _Log) -> _Run:
+    """The student on its device with its optimiser, started from ``init`` or resumed, and the teacher."""
+    model, prefixes, trained = _student(conf)
+    device = _device(conf["device"])
+    model.to(device)
+    optimizer = torch.optim.AdamW(trained, lr=conf["lr"], weight_decay=conf["weight_decay"])
+    step, best, checkpoint = _starting_point(conf, model, optimizer, out / "latest.pt", log)
+    set_training(model, prefixes)
+    teacher, teacher_sha256 = _teacher(conf, checkpoint, prefixes, device, log)
+    net: torch.nn.Module = model
+    if world > 1:
+        net = torch.nn.parallel.DistributedDataParallel(model)
+    return _Run(
+        conf, rank, world, out, log, model, net, optimizer, trained, prefixes, device, teacher,
+        teacher_sha256, step, best,
+    )  # fmt: skip
+
+
+def _student(conf: dict) -> tuple[StereoGeoNet, tuple[str, ...], list]:
+    """The model to train, the ``train_only`` prefixes and the parameters that train (the rest frozen)."""
     # ImageNet weights for the encoder unless a checkpoint supplies every weight (init)
     model = StereoGeoNet({**conf["model"], "pretrained": not conf["init"]})
     if conf["loss"].get("depth_weight", 0) > 0 and model.depth_head is None:
@@ -325,9 +460,14 @@ def train(conf: dict) -> dict:
     if prefixes:
         for name, param in model.named_parameters():
             param.requires_grad_(name.startswith(prefixes))
-    device = _device(conf["device"])
-    model.to(device)
-    optimizer = torch.optim.AdamW(trained, lr=conf["lr"], weight_decay=conf["weight_decay"])
+    return model, prefixes, trained
+
+
+def _starting_point(
+    conf: dict, model: StereoGeoNet, optimizer: torch.optim.Optimizer, latest: Path, log: _Log
+) -> tuple[int, float, dict]:
+    """Load the ``init`` weights, or with ``resume`` the state of ``latest``; returns the step, the best
+    validation score and the resumed checkpoint (empty when not resumed)."""
     step, best, checkpoint = 0, math.inf, {}
     if conf["init"] and not (conf.get("resume") and latest.is_file()):
         fresh = init_from_checkpoint(model, conf["init"])
@@ -343,30 +483,41 @@ def train(conf: dict) -> dict:
         optimizer.load_state_dict(checkpoint["optimizer"])
         step, best = int(checkpoint["step"]), float(checkpoint.get("best", math.inf))
         log("resume", step=step)
-    set_training(model, prefixes)
-    teacher, teacher_sha256 = None, None
-    if conf["loss"].get("teacher_weight", 0) > 0:
-        if not conf["teacher"]:
-            raise StereoGeoError('loss teacher_weight > 0 needs a teacher checkpoint ("teacher": PATH)')
-        teacher_sha256 = file_sha256(conf["teacher"])
-        started_with = checkpoint.get("teacher_sha256")
-        if started_with and started_with != teacher_sha256:
-            # e.g. a teacher at models/stereogeo.pt, replaced by the model this run was fine-tuning from
-            raise StereoGeoError(
-                f"the teacher {conf['teacher']} is not the file this run started with (sha256 "
-                f"{teacher_sha256[:12]}, was {started_with[:12]}): resume with that file as the teacher"
-            )
-        teacher, _ = load_checkpoint(conf["teacher"])
-        teacher.to(device)
-        teacher.requires_grad_(False)
-        # The teacher runs in the student's modes (batch statistics where the student trains), on the
-        # whole batch, so before the first step the two agree exactly and the loss holds the function.
-        set_training(teacher, prefixes)
-        log("teacher", checkpoint=str(conf["teacher"]))
-    net: torch.nn.Module = model
-    if world > 1:
-        net = torch.nn.parallel.DistributedDataParallel(model)
+    return step, best, checkpoint
 
+
+def _teacher(
+    conf: dict, checkpoint: dict, prefixes: tuple[str, ...], device: torch.device, log: _Log
+) -> tuple[StereoGeoNet | None, str | None]:
+    """The frozen teacher and its file's sha256 when the loss has a teacher weight, else (None, None); a
+    resumed run must have the teacher file it started with."""
+    if not conf["loss"].get("teacher_weight", 0) > 0:
+        return None, None
+    if not conf["teacher"]:
+        raise StereoGeoError('loss teacher_weight > 0 needs a teacher checkpoint ("teacher": PATH)')
+    teacher_sha256 = file_sha256(conf["teacher"])
+    started_with = checkpoint.get("teacher_sha256")
+    if started_with and started_with != teacher_sha256:
+        # e.g. a teacher at models/stereogeo.pt, replaced by the model this run was fine-tuning from
+        raise StereoGeoError(
+            f"the teacher {conf['teacher']} is not the file this run started with (sha256 "
+            f"{teacher_sha256[:12]}, was {started_with[:12]}): resume with that file as the teacher"
+        )
+    teacher, _ = load_checkpoint(conf["teacher"])
+    teacher.to(device)
+    teacher.requires_grad_(False)
+    # The teacher runs in the student's modes (batch statistics where the student trains), on the
+    # whole batch, so before the first step the two agree exactly and the loss holds the function.
+    set_training(teacher, prefixes)
+    log("teacher", checkpoint=str(conf["teacher"]))
+    return teacher, teacher_sha256
+
+
+def _training_loader(
+    conf: dict, rank: int, world: int, step: int
+) -> tuple[TrainingPairs, torch.utils.data.DataLoader, bool]:
+    """The training pairs, the loader of this rank's batches from ``step`` on, and whether there are wide
+    frames."""
     sources, wide_sources = _sources(conf), [FolderPairs(d) for d in conf["wide_data"]]
     sizes = list(conf["sizes"]) + (list(conf["wide_sizes"]) if wide_sources else [])
     free = set(range(len(conf["data"]), len(conf["data"]) + len(conf["teacher_free_data"])))
@@ -384,37 +535,29 @@ def train(conf: dict) -> dict:
         dataset, batch_sampler=sampler, num_workers=conf["workers"],
         persistent_workers=conf["workers"] > 0, prefetch_factor=4 if conf["workers"] > 0 else None,
     )  # fmt: skip
-    val = FolderPairs(conf["val"]) if conf["val"] and rank == 0 else None
-    training_data = ", ".join(
+    return dataset, loader, bool(wide_sources)
+
+
+def _training_data_description(conf: dict) -> str:
+    """The training data as the checkpoint records it: the folders, marked by their role, and the renders."""
+    return ", ".join(
         [str(d) for d in conf["data"]]
         + [f"{d} (no teacher)" for d in conf["teacher_free_data"]]
         + ([f"{conf['render']} rendered"] if conf["render"] else [])
         + [f"{d} (wide)" for d in conf["wide_data"]]
     )
-    version = conf["model_version"] or out.name
 
-    def save(path: Path, metrics: dict | None = None) -> None:
-        if rank != 0:
-            return
-        save_checkpoint(
-            path, model, step, optimizer=optimizer.state_dict(), best=best, metrics=metrics or {},
-            train_conf=json.loads(json.dumps(conf, default=str)), training_data=training_data,
-            model_version=version, input_short_side=int(conf["input_short_side"]),
-            **({"teacher_sha256": teacher_sha256} if teacher_sha256 else {}),
-        )  # fmt: skip
 
-    log(
-        "start",
-        step=step,
-        steps=conf["steps"],
-        pairs=len(dataset),
-        world=world,
-        batch_size=conf["batch_size"],
-    )
+def _run_steps(
+    run: _Run, loader: torch.utils.data.DataLoader, val: FolderPairs | None, has_wide: bool
+) -> float:
+    """Train until ``steps`` under a progress bar, with progress lines, validations and checkpoints;
+    returns the ``time.monotonic()`` at which training started."""
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    interactive = rank == 0 and sys.stderr.isatty()
+    conf, log, latest = run.conf, run.log, run.out / "latest.pt"
+    interactive = run.rank == 0 and sys.stderr.isatty()
     if interactive:
         log.silent.add("train")
     columns = (
@@ -423,60 +566,29 @@ def train(conf: dict) -> dict:
     )  # fmt: skip
     last_save, started, seen, wide_seen = time.monotonic(), time.monotonic(), 0, 0
     running: dict[str, float] = {}
-    metrics: dict[str, float] = {}
     iterator = iter(loader)
     with Progress(*columns, console=Console(stderr=True), disable=not interactive) as bar:
-        task = bar.add_task("train", total=conf["steps"], completed=step, info="")
-        while step < conf["steps"]:
-            batch = {k: v.to(device) if torch.is_tensor(v) else v for k, v in next(iterator).items()}
-            for group in optimizer.param_groups:
-                group["lr"] = lr_at(step, conf)
-            outputs = net(batch["left"], batch["right"])
-            held, is_wide = None, int(batch["size_index"][0]) >= len(conf["sizes"])
+        task = bar.add_task("train", total=conf["steps"], completed=run.step, info="")
+        while run.step < conf["steps"]:
+            batch = {k: v.to(run.device) if torch.is_tensor(v) else v for k, v in next(iterator).items()}
+            losses, is_wide = run.train_step(batch)
             wide_seen += is_wide
-            # A wide batch has no teacher: wide frames are what the fine-tune corrects the teacher's reading
-            # of, so its panorama crops are held to their ground truth alone (docs/network.md, "Wide frames
-            # in training").
-            if teacher is not None and not is_wide:
-                with torch.no_grad():
-                    held = teacher(batch["left"], batch["right"])
-            losses = compute_losses(
-                outputs, batch, conf["loss"], with_refiner=step >= conf["refiner_start"], teacher=held
-            )
-            optimizer.zero_grad(set_to_none=True)
-            losses["total"].backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(trained, conf["clip_grad"])
-            if torch.isfinite(grad_norm):
-                optimizer.step()
-            step += 1
-            seen += batch["left"].shape[0] * world
+            seen += batch["left"].shape[0] * run.world
             for k, v in _to_float(losses).items():
                 running[k] = 0.9 * running.get(k, v) + 0.1 * v
-            bar.update(task, completed=step, info=f"loss {running['total']:.3f}")
-            if step % conf["log_every"] == 0 or step == 1:
+            bar.update(task, completed=run.step, info=f"loss {running['total']:.3f}")
+            if run.step % conf["log_every"] == 0 or run.step == 1:
                 rate = seen / max(time.monotonic() - started, 1e-9)
-                extra = {"wide_batches": wide_seen} if wide_sources else {}
-                log("train", step=step, lr=lr_at(step, conf), pairs_per_s=rate, **extra, **running)
-            if val is not None and (step % conf["val_every"] == 0 or step == conf["steps"]):
-                metrics = validate(model, val, conf["val_count"], int(conf["input_short_side"]))
-                set_training(model, prefixes)
-                log("val", step=step, **metrics)
-                score = metrics["roll_median"] + metrics["pitch_median"] + metrics["vfov_median"]
-                if score < best:
-                    best = score
-                    save(out / "best.pt", metrics)
-            due = time.monotonic() - last_save > 60 * conf["checkpoint_minutes"] or step == conf["steps"]
-            if _agree(due, world):
-                _sync_buffers(model, world)
-                save(latest, metrics)
+                extra = {"wide_batches": wide_seen} if has_wide else {}
+                log("train", step=run.step, lr=lr_at(run.step, conf), pairs_per_s=rate, **extra, **running)
+            if val is not None and (run.step % conf["val_every"] == 0 or run.step == conf["steps"]):
+                run.validate_and_keep_best(val)
+            due = time.monotonic() - last_save > 60 * conf["checkpoint_minutes"] or run.step == conf["steps"]
+            if _agree(due, run.world):
+                _sync_buffers(run.model, run.world)
+                run.save(latest, run.metrics)
                 last_save = time.monotonic()
-    if conf.get("dump_replica"):
-        torch.save(model.state_dict(), Path(conf["dump_replica"]) / f"rank{rank}.pt")
-    log("done", step=step, seconds=time.monotonic() - started)
-    if world > 1:
-        dist.barrier()
-        dist.destroy_process_group()
-    return metrics
+    return started
 
 
 def parse_args(argv: list[str] | None = None) -> dict:
