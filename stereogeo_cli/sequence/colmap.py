@@ -9,10 +9,15 @@ R, T are the initial values, nothing more.
 
 Pixel conventions: COLMAP puts (0, 0) at the top-left corner of the top-left pixel, stereogeo (OpenCV) at
 its centre; a principal point x in stereogeo's pixels is x + 0.5 in COLMAP's.
+
+COLMAP's own log (glog) never reaches the terminal: while it works for a sequence it is written to the
+workspace's ``colmap.log`` (:func:`logging_into`), and elsewhere nowhere; its failures come as errors.
 """
 
 from __future__ import annotations
 
+import contextlib
+import glob
 import math
 import os
 import tempfile
@@ -171,8 +176,59 @@ def _pycolmap():
                 signal.signal(s, handler if handler is not None else signal.SIG_DFL)
     import pycolmap
 
-    pycolmap.logging.minloglevel = 3  # COLMAP's own lines are not the user's: its failures come as errors
+    global _log_sinks_closed
+    if not _log_sinks_closed:
+        _close_log_sinks(pycolmap.logging)
+        _log_sinks_closed = True
     return pycolmap
+
+
+LOG_NAME = "colmap.log"  # COLMAP's log of a sequence, in its workspace (:func:`logging_into`)
+_GLOG_FLAGS = ("logtostderr", "logtostdout", "alsologtostderr", "stderrthreshold", "minloglevel")
+_log_sinks_closed = False  # whether _close_log_sinks ran (once per process)
+_logging_into: Path | None = None  # the workspace whose log COLMAP writes now (logging_into)
+
+
+def _close_log_sinks(log) -> None:
+    """COLMAP's log (glog) written nowhere but where :func:`logging_into` sends it: not to the terminal
+    (pycolmap's default also copies every line to stderr) and into no file of glog's own choosing (it
+    would make one per severity in /tmp). A fatal error still shows on stderr, as the process ends."""
+    log.logtostderr = log.logtostdout = log.alsologtostderr = False
+    log.stderrthreshold = log.FATAL.value
+    for level in (log.INFO, log.WARNING, log.ERROR, log.FATAL):
+        log.set_log_destination(level, "")  # "": no file for this severity
+
+
+@contextlib.contextmanager
+def logging_into(workspace: str | os.PathLike):
+    """While the block runs, COLMAP's log (every line, INFO up) goes to ``workspace/colmap.log``
+    (:data:`LOG_NAME`, appended to) and none of it to the terminal. glog names its files itself (the name
+    given, a time stamp and the process id): it writes into one of its own in the workspace, which is
+    closed (flushed), appended to the log and removed as the block ends. Within such a block it does
+    nothing more (COLMAP's log stays where the outer one sends it). Yields the log's path."""
+    global _logging_into
+    workspace = Path(workspace)
+    if _logging_into is not None:
+        yield _logging_into / LOG_NAME
+        return
+    log = _pycolmap().logging
+    part = workspace / f".{LOG_NAME}.{os.getpid()}."  # glog's file: this name, its time stamp and pid
+    saved = {name: getattr(log, name) for name in _GLOG_FLAGS}
+    _logging_into = workspace
+    try:
+        log.logtostderr = log.logtostdout = log.alsologtostderr = False
+        log.stderrthreshold, log.minloglevel = log.FATAL.value, log.INFO.value
+        log.set_log_destination(log.INFO, str(part))  # every severity's lines land in INFO's file
+        yield workspace / LOG_NAME
+    finally:
+        log.set_log_destination(log.INFO, "")  # closes glog's file
+        for name, value in saved.items():
+            setattr(log, name, value)
+        _logging_into = None
+        with contextlib.suppress(OSError), open(workspace / LOG_NAME, "ab") as out:  # a log is no result
+            for written in sorted(workspace.glob(f"{glob.escape(part.name)}*")):
+                out.write(written.read_bytes())
+                written.unlink()
 
 
 def image_features(image: np.ndarray, max_features: int) -> tuple[np.ndarray, np.ndarray]:
@@ -200,22 +256,19 @@ def _frame_name(image_name: str) -> str:
     return image_name.split("/", 1)[1]
 
 
-def _write_cameras(pycolmap, database_path: Path, starts: tuple[CameraStart, CameraStart]) -> None:
-    """Give each folder's camera (one per sensor, made by the feature extraction) its start values."""
-    db = pycolmap.Database.open(database_path)
-    try:
-        by_prefix = {}
-        for image in db.read_all_images():
-            by_prefix.setdefault(image.name.split("/", 1)[0], image.camera_id)
-        for sensor, start in zip(SENSORS, starts, strict=True):
-            camera = db.read_camera(by_prefix[sensor])
-            camera.model = start.model
-            camera.width, camera.height = start.width, start.height
-            camera.params = start.params()
-            camera.has_prior_focal_length = True
-            db.update_camera(camera)
-    finally:
-        db.close()
+def _write_cameras(db, starts: tuple[CameraStart, CameraStart]) -> None:
+    """Give each folder's camera (one per sensor, made by the feature extraction) its start values, in the
+    open database ``db``."""
+    by_prefix = {}
+    for image in db.read_all_images():
+        by_prefix.setdefault(image.name.split("/", 1)[0], image.camera_id)
+    for sensor, start in zip(SENSORS, starts, strict=True):
+        camera = db.read_camera(by_prefix[sensor])
+        camera.model = start.model
+        camera.width, camera.height = start.width, start.height
+        camera.params = start.params()
+        camera.has_prior_focal_length = True
+        db.update_camera(camera)
 
 
 def _rig_config(pycolmap, R: np.ndarray, T: np.ndarray):
@@ -241,14 +294,14 @@ def match_frames(
     conf = {**default_conf, **conf}
     database = workspace / "database.db"
     database.unlink(missing_ok=True)
-    pycolmap.Database.open(database).close()
+    with pycolmap.Database.open(database):  # a new, empty database
+        pass
     reader = pycolmap.ImageReaderOptions(camera_model=starts[0].model, camera_params=",".join(
         str(p) for p in starts[0].params()
     ))  # fmt: skip
     if features is None:
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.num_threads = conf["threads"]
-        extraction.sift.max_num_features = conf["max_features"]
+        sift = pycolmap.SiftExtractionOptions(max_num_features=conf["max_features"])
+        extraction = pycolmap.FeatureExtractionOptions(num_threads=conf["threads"], sift=sift)
         _cancellable(
             pycolmap.extract_features, database, workspace / "images",
             camera_mode=pycolmap.CameraMode.PER_FOLDER, reader_options=reader,
@@ -258,8 +311,7 @@ def match_frames(
         pycolmap.import_images(
             database, workspace / "images", camera_mode=pycolmap.CameraMode.PER_FOLDER, options=reader
         )
-        db = pycolmap.Database.open(database)
-        try:
+        with pycolmap.Database.open(database) as db:
             for image in db.read_all_images():
                 keypoints, descriptors = features[image.name]
                 db.write_keypoints(image.image_id, keypoints)
@@ -267,16 +319,10 @@ def match_frames(
                     image.image_id,
                     pycolmap.FeatureDescriptors(pycolmap.FeatureExtractorType.SIFT, descriptors),
                 )
-        finally:
-            db.close()
-    _write_cameras(pycolmap, database, starts)
-    db = pycolmap.Database.open(database)
-    try:
+    with pycolmap.Database.open(database) as db:
+        _write_cameras(db, starts)
         pycolmap.apply_rig_config([_rig_config(pycolmap, R, T)], db)
-    finally:
-        db.close()
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = conf["threads"]
+    matching = pycolmap.FeatureMatchingOptions(num_threads=conf["threads"])
     pairing = pycolmap.SequentialPairingOptions(
         overlap=conf["overlap"], quadratic_overlap=conf["quadratic_overlap"]
     )
@@ -288,19 +334,19 @@ def match_frames(
 
 
 def _mapping_options(pycolmap, radial: bool, conf: dict):
-    options = pycolmap.IncrementalPipelineOptions()
-    options.num_threads = conf["threads"]
-    options.ba_refine_focal_length = True
-    options.ba_refine_principal_point = False
-    options.ba_refine_extra_params = radial
-    options.ba_refine_sensor_from_rig = True
-    options.min_model_size = conf["min_model_frames"]
-    options.random_seed = 0
-    for name, value in conf["mapping"].items():  # e.g. fewer global adjustments while frames are added
-        setattr(options, name, value)
-    for name, value in conf["mapper"].items():
-        setattr(options.mapper, name, value)
-    return options
+    pipeline = {
+        "num_threads": conf["threads"],
+        "ba_refine_focal_length": True,
+        "ba_refine_principal_point": False,
+        "ba_refine_extra_params": radial,
+        "ba_refine_sensor_from_rig": True,
+        "min_model_size": conf["min_model_frames"],
+        "random_seed": 0,
+        **conf["mapping"],  # e.g. fewer global adjustments while frames are added
+    }
+    return pycolmap.IncrementalPipelineOptions(
+        **pipeline, mapper=pycolmap.IncrementalMapperOptions(**conf["mapper"])
+    )
 
 
 def map_frames(workspace: Path, database: Path, radial: bool, conf: dict, stop=None) -> list:
@@ -321,19 +367,31 @@ def _bundle_adjust(
 ) -> tuple[float, int]:
     """COLMAP's bundle adjustment of every registered frame, the rig, the points and the intrinsics (the
     focal lengths only where ``refine_focal``, the principal point only where ``refine_principal_point``).
-    Returns its final cost (½ Σ r², r in pixels) and its degrees of freedom (residuals less parameters)."""
+    Returns its final cost (½ Σ r², r in pixels) and its degrees of freedom (residuals less parameters).
+
+    Raises:
+        CalibrationFailed: the solver ended without a usable solution (its cost means nothing then).
+    """
     pycolmap = _pycolmap()
-    options = pycolmap.BundleAdjustmentOptions()
-    options.refine_focal_length = refine_focal
-    options.refine_principal_point = refine_principal_point
-    options.refine_extra_params = radial
-    options.refine_sensor_from_rig = True
-    options.print_summary = False
+    options = pycolmap.BundleAdjustmentOptions(
+        refine_focal_length=refine_focal,
+        refine_principal_point=refine_principal_point,
+        refine_extra_params=radial,
+        refine_sensor_from_rig=True,
+        print_summary=False,
+    )
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in reconstruction.reg_image_ids():
         config.add_image(image_id)
     config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
     summary = pycolmap.create_default_ceres_bundle_adjuster(options, config, reconstruction).solve()
+    if not summary.is_solution_usable():  # e.g. FAILURE (a problem Ceres could not solve, or no residuals)
+        solver = getattr(summary, "ceres_summary", None)  # absent where Ceres did not run
+        reason = " ".join(str(solver.message).split()) if solver is not None else ""
+        raise CalibrationFailed(
+            f"COLMAP's bundle adjustment found no usable solution ({summary.termination_type.name}"
+            f"{': ' + reason if reason else ''})"
+        )
     ceres = summary.ceres_summary
     return float(ceres.final_cost), int(ceres.num_residuals_reduced - ceres.num_effective_parameters_reduced)
 
@@ -540,7 +598,8 @@ def reconstruct(
     """The whole bridge: match, map and adjust the frames in ``workspace/images/{left,right}/`` (the same
     file names in both, in time order), starting from ``starts`` and the rig (R, T). ``stop``: a
     :class:`~stereogeo_cli.jobs.interrupt.Stop` whose request cancels COLMAP's work (:class:`Cancelled`).
-    ``progress``: called as ``progress(0, None, stage)`` when each of the three stages starts.
+    ``progress``: called as ``progress(0, None, stage)`` when each of the three stages starts. COLMAP's
+    log of it all is ``workspace/colmap.log`` (:func:`logging_into`; a log from before is replaced).
 
     Raises:
         CalibrationFailed: COLMAP made no model of at least ``min_model_frames`` frames.
@@ -552,16 +611,18 @@ def reconstruct(
         if progress is not None:
             progress(0, None, name)
 
-    stage("COLMAP: matching the frames")
-    database = match_frames(workspace, starts, R, T, conf, stop, features)
-    radial = starts[0].radial or starts[1].radial
-    stage("COLMAP: mapping")
-    models = map_frames(workspace, database, radial, conf, stop)
-    if not models or models[0].num_reg_frames() < conf["min_model_frames"]:
-        raise CalibrationFailed(
-            "COLMAP could not reconstruct the sequence (too few frames share enough features): "
-            "a sequence needs overlapping views of a textured scene"
-        )
-    stage("COLMAP: bundle adjustment")
-    largest = models[0]
-    return read_model(adjust(largest, radial, conf, stop), len(models))
+    (workspace / LOG_NAME).unlink(missing_ok=True)  # this run's log, as its database is this run's
+    with logging_into(workspace):
+        stage("COLMAP: matching the frames")
+        database = match_frames(workspace, starts, R, T, conf, stop, features)
+        radial = starts[0].radial or starts[1].radial
+        stage("COLMAP: mapping")
+        models = map_frames(workspace, database, radial, conf, stop)
+        if not models or models[0].num_reg_frames() < conf["min_model_frames"]:
+            raise CalibrationFailed(
+                "COLMAP could not reconstruct the sequence (too few frames share enough features): "
+                "a sequence needs overlapping views of a textured scene"
+            )
+        stage("COLMAP: bundle adjustment")
+        largest = models[0]
+        return read_model(adjust(largest, radial, conf, stop), len(models))
