@@ -915,6 +915,15 @@ def _print_sequence_summary(report: dict, console, warnings_console) -> None:
     pose = report["pose"]
     console.print(f"R      {pose['rotation_deg']:.3f}° (± {pose['sigma_rotation_deg'] or 0:.3f}°)")
     console.print(f"T      {np.round(report['T'], 4).tolist()} m ({report['scale_source']} scale)")
+    left_out = seq.get("left_out")
+    if left_out and left_out["row_error_px"]["median"] is not None:
+        rows = left_out["row_error_px"]
+        console.print(
+            f"check  frames left out of the fit, rectified: rows {rows['median']:.2f} px apart (median), "
+            f"{rows['p95']:.2f} px (95 %), {rows['matches']} points; the focal length moves "
+            f"{100 * left_out['focal_sigma_rel']:.2f} % between {left_out['blocks']} stretches; reprojection "
+            f"{seq['reprojection_error_px']:.2f} px"
+        )
     turned = "" if seq["rotation_span_deg"] is None else f", the rig turned {seq['rotation_span_deg']:.1f}°"
     console.print(
         f"frames {seq['frames_registered']} of {seq['frames_read']} registered{turned}: focal length "

@@ -75,6 +75,22 @@ def test_a_turning_rig_gets_its_focal_length_r_and_t_from_the_sequence(turning):
     assert R_error < 3 * report["pose"]["sigma_rotation_deg"]
 
 
+def test_frames_left_out_of_the_fit_line_up_once_rectified(turning):
+    """The check a stereo calibration is judged by: each stretch of frames, left out of the adjustment,
+    rectified with the calibration fitted without it; a render's rows meet well under ROS's 0.25 px."""
+    _, _, _, report = turning
+    left_out = report["sequence"]["left_out"]
+    assert left_out["blocks"] == 5 and len(left_out["focal_px"]) == 5
+    rows = left_out["row_error_px"]
+    assert rows["matches"] > 1000
+    assert rows["median"] < 0.25 and rows["median"] <= rows["p95"] < 1.0
+    # the adjustment's focal sigma is at least what the stretches' spread says
+    for side in ("left", "right"):
+        adjusted = report["sequence"]["evidence"]["focal"][side]["adjustment"]
+        assert adjusted["sigma_px"] >= left_out["focal_sigma_rel"] * adjusted["focal_px"]
+    assert report["pose"]["sigma_rotation_deg"] >= left_out["rotation_sigma_deg"]
+
+
 def test_each_frame_gets_its_roll_and_pitch_in_a_world_with_z_up(turning):
     folder, truth, _, report = turning
     up = np.array(truth["gravity_up_world"])

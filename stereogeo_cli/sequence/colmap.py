@@ -21,13 +21,15 @@ import glob
 import math
 import os
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed
 from stereogeo_cli.geometry import rotation_angle
+from stereogeo_cli.sequence import blocks
+from stereogeo_cli.sequence.blocks import BlockFit
 
 SENSORS = ("left", "right")  # the image folders of the workspace, and COLMAP's image-name prefixes
 
@@ -107,6 +109,10 @@ class SequenceModel:
     points: int
     reprojection_error_px: float
     notes: list[str] = field(default_factory=list)
+    # the stretches left out one at a time (blocks.LeftOut), and the adjustment's cost profile's relative
+    # sigma of the focal lengths (the cameras' sigma is the wider of it and the stretches')
+    left_out: object = None
+    profile_sigma_rel: float = math.inf
 
 
 CANCEL_WAIT_S = 30.0  # at most this long for COLMAP to end its work once cancelled
@@ -363,11 +369,12 @@ def map_frames(workspace: Path, database: Path, radial: bool, conf: dict, stop=N
 
 
 def _bundle_adjust(
-    reconstruction, radial: bool, refine_focal: bool, refine_principal_point: bool = False
+    reconstruction, radial: bool, refine_focal: bool, refine_principal_point: bool = False, images=None
 ) -> tuple[float, int]:
-    """COLMAP's bundle adjustment of every registered frame, the rig, the points and the intrinsics (the
-    focal lengths only where ``refine_focal``, the principal point only where ``refine_principal_point``).
-    Returns its final cost (½ Σ r², r in pixels) and its degrees of freedom (residuals less parameters).
+    """COLMAP's bundle adjustment of every registered frame (or only the registered ``images``, by id),
+    the rig, the points and the intrinsics (the focal lengths only where ``refine_focal``, the principal
+    point only where ``refine_principal_point``). Returns its final cost (½ Σ r², r in pixels) and its
+    degrees of freedom (residuals less parameters).
 
     Raises:
         CalibrationFailed: the solver ended without a usable solution (its cost means nothing then).
@@ -381,7 +388,7 @@ def _bundle_adjust(
         print_summary=False,
     )
     config = pycolmap.BundleAdjustmentConfig()
-    for image_id in reconstruction.reg_image_ids():
+    for image_id in reconstruction.reg_image_ids() if images is None else images:
         config.add_image(image_id)
     config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
     summary = pycolmap.create_default_ceres_bundle_adjuster(options, config, reconstruction).solve()
@@ -451,6 +458,66 @@ def adjust(reconstruction, radial: bool, conf: dict, stop=None):
         centre = (camera.principal_point_x - 0.5, camera.principal_point_y - 0.5)
         cameras.append(AdjustedCamera(params[0], params[0] * sigma_rel, k[0], k[1], centre, free_centre))
     return (cameras[0], cameras[1]), reconstruction
+
+
+def _block_fit(reconstruction) -> BlockFit:
+    """A reconstruction's cameras (K and OpenCV D in stereogeo's pixels) and rig, as :class:`BlockFit`."""
+    K, D, focal = [], [], []
+    for camera_id in _camera_ids(reconstruction):
+        camera = reconstruction.cameras[camera_id]
+        params = [float(p) for p in camera.params]
+        f, cx, cy = params[0], camera.principal_point_x - 0.5, camera.principal_point_y - 0.5
+        K.append(np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]]))
+        D.append(np.array([*(params[3:5] if len(params) >= 5 else [0.0, 0.0]), 0.0, 0.0]))
+        focal.append(f)
+    right_from_left = _right_from_left(reconstruction)
+    return BlockFit((focal[0], focal[1]), (K[0], K[1]), (D[0], D[1]), right_from_left[:3, :3],
+                    right_from_left[:3, 3])  # fmt: skip
+
+
+def _frames(reconstruction) -> dict[str, dict[str, int]]:
+    """Per frame name the registered image ids of its sensors (``{"left": id, "right": id}``)."""
+    frames: dict[str, dict[str, int]] = {}
+    for image_id in reconstruction.reg_image_ids():
+        sensor, name = reconstruction.images[image_id].name.split("/", 1)
+        frames.setdefault(name, {})[sensor] = image_id
+    return frames
+
+
+def _correspondences(reconstruction, left_id: int, right_id: int) -> tuple[np.ndarray, np.ndarray]:
+    """The points of the model seen by both images of one frame: their pixels (stereogeo's) in each."""
+    seen = [{p.point3D_id: p.xy for p in reconstruction.images[i].points2D if p.has_point3D()}
+            for i in (left_id, right_id)]  # fmt: skip
+    common = sorted(set(seen[0]) & set(seen[1]))
+    if not common:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    return tuple(np.array([s[k] for k in common], float) - 0.5 for s in seen)
+
+
+def left_out_blocks(reconstruction, radial: bool, free_centre: bool, sizes: tuple, conf: dict, stop=None):
+    """The jackknife over stretches of the sequence and the left-out frames' row check
+    (:mod:`~stereogeo_cli.sequence.blocks`): the adjustment run again without each stretch (as the last one
+    was run: the focal lengths and the lens refined, the principal points where they were freed). None
+    where the sequence has too few frames for the conf's ``blocks``. ``sizes``: ((h, w) left, right)."""
+    pycolmap = _pycolmap()
+    settings = {**blocks.default_conf, **conf.get("blocks", {})}
+    frames = _frames(reconstruction)
+    both = [name for name, ids in frames.items() if len(ids) == 2]
+    if len(both) < settings["blocks"] * settings["min_block_frames"]:
+        return None
+    fits, rows = [], []
+    for stretch in blocks.stretches(both, settings["blocks"]):
+        if stop is not None and stop.requested:
+            raise Cancelled()
+        left_out = {i for name in stretch for i in frames[name].values()}
+        kept = [i for i in reconstruction.reg_image_ids() if i not in left_out]
+        trial = pycolmap.Reconstruction(reconstruction)
+        _bundle_adjust(trial, radial, refine_focal=True, refine_principal_point=free_centre, images=kept)
+        fit = _block_fit(trial)
+        fits.append(fit)
+        pairs = [_correspondences(reconstruction, frames[n]["left"], frames[n]["right"]) for n in stretch]
+        rows.append(blocks.row_errors(fit, sizes, [p for p in pairs if len(p[0])]))
+    return blocks.summarise(fits, np.concatenate(rows))
 
 
 def rig_sigmas(model: SequenceModel) -> tuple[float, float]:
@@ -565,6 +632,16 @@ def _camera_ids(reconstruction) -> tuple[int, int]:
     return ids[SENSORS[0]], ids[SENSORS[1]]
 
 
+def _right_from_left(reconstruction) -> np.ndarray:
+    """The rig's right camera from its left one [4 x 4], read off the first frame with both images."""
+    frames = _frames(reconstruction)
+    both = sorted(name for name, ids in frames.items() if len(ids) == 2)
+    if not both:
+        raise CalibrationFailed("COLMAP registered no frame with both of its images")
+    left, right = (_matrix(reconstruction.images[frames[both[0]][s]].cam_from_world()) for s in SENSORS)
+    return right @ np.linalg.inv(left)
+
+
 def read_model(adjusted, models: int) -> SequenceModel:
     """The pieces of an adjusted reconstruction (:func:`adjust`'s result) that the calibration needs."""
     cameras, reconstruction = adjusted
@@ -575,10 +652,7 @@ def read_model(adjusted, models: int) -> SequenceModel:
         image = reconstruction.images[image_id]
         pose = _matrix(image.cam_from_world())
         (cam_from_world if image.camera_id == left_id else right_from_world)[_frame_name(image.name)] = pose
-    both = [name for name in cam_from_world if name in right_from_world]
-    if not both:
-        raise CalibrationFailed("COLMAP registered no frame with both of its images")
-    right_from_left = right_from_world[both[0]] @ np.linalg.inv(cam_from_world[both[0]])
+    right_from_left = _right_from_left(reconstruction)
     return SequenceModel(
         reconstruction=reconstruction,
         cameras=cameras,
@@ -624,5 +698,24 @@ def reconstruct(
                 "a sequence needs overlapping views of a textured scene"
             )
         stage("COLMAP: bundle adjustment")
-        largest = models[0]
-        return read_model(adjust(largest, radial, conf, stop), len(models))
+        cameras, adjusted = adjust(models[0], radial, conf, stop)
+        stage("COLMAP: stretches of frames left out")
+        sizes = tuple((start.height, start.width) for start in starts)
+        free_centre = cameras[0].principal_point_refined
+        left_out = left_out_blocks(adjusted, radial, free_centre, sizes, conf, stop)
+        return _with_left_out(read_model((cameras, adjusted), len(models)), left_out)
+
+
+def _with_left_out(model: SequenceModel, left_out) -> SequenceModel:
+    """The model with the left-out stretches' reading: each focal length's sigma the wider of the cost
+    profile's and the stretches' jackknife (the profile measures how sharply the adjustment's own model
+    ties the focal lengths, the stretches how far the data move them)."""
+    if left_out is None:
+        return model
+    cameras = []
+    for camera in model.cameras:
+        profile = camera.sigma_focal_px / camera.focal_px
+        wider = max(profile, left_out.focal_sigma_rel) if math.isfinite(profile) else profile
+        cameras.append(replace(camera, sigma_focal_px=camera.focal_px * wider))
+    profile = model.cameras[0].sigma_focal_px / model.cameras[0].focal_px
+    return replace(model, cameras=tuple(cameras), left_out=left_out, profile_sigma_rel=profile)

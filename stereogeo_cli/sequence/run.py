@@ -230,7 +230,7 @@ def calibrate_frames(
     if progress is not None:
         progress(0, None, "combining the frames' evidence")
     # the frames' own spread, in the reconstruction's own world (before it is aligned)
-    rig_sigmas = rig_sigmas_deg(colmap.rig_sigmas(model), model.cameras, sizes, conf["evidence"])
+    rig_sigmas = rig_sigmas_deg(_rig_spread(model), model.cameras, sizes, conf["evidence"])
     by_index = {f"{f.index:06d}.png": f for f in frames}
     registered = {int(name[:6]): pose for name, pose in model.cam_from_world.items()}
     up, up_sigma_deg, used = world_up(readings, registered, model.R, conf["evidence"])
@@ -276,6 +276,18 @@ def calibrate_frames(
         sizes, rig_sigmas,
     )  # fmt: skip
     return SequenceResult(calibration, model.reconstruction, trajectory)
+
+
+def _rig_spread(model) -> tuple[float, float]:
+    """R's and T's direction's 1-sigma from the frames (degrees): the wider of the right camera's poses
+    located alone (:func:`colmap.rig_sigmas`) and the left-out stretches' jackknife."""
+    spread = colmap.rig_sigmas(model)
+    if model.left_out is None:
+        return spread
+    return (
+        max(spread[0], model.left_out.rotation_sigma_deg),
+        max(spread[1], model.left_out.direction_sigma_deg),
+    )
 
 
 def _with_vertical_segments(model, read: FrameReadings, readings_up: tuple, conf: dict, notes: list[str]):
@@ -384,6 +396,9 @@ def _sequence_block(frames, model, focals, attitudes, up, span, scale) -> dict:
         "reprojection_error_px": finite(model.reprojection_error_px),
         "rotation_span_deg": span,
         "focal_observable": all(f.observable for f in focals),
+        # the stretches of frames left out one at a time: their jackknife sigmas and the row check
+        "left_out": None if model.left_out is None else model.left_out.to_report(),
+        "adjustment_profile_sigma_rel": finite(model.profile_sigma_rel),
         "evidence": {
             "focal": {side: f.to_report() for side, f in zip(("left", "right"), focals, strict=True)},
             "gravity": {
