@@ -91,6 +91,18 @@ def test_frames_left_out_of_the_fit_line_up_once_rectified(turning):
     assert report["pose"]["sigma_rotation_deg"] >= left_out["rotation_sigma_deg"]
 
 
+def test_a_render_reads_alike_in_least_squares_and_with_a_robust_loss(turning):
+    """Where the camera model and a still scene fit the frames, weighing the residuals robustly moves the
+    adjustment by far less than its sigma; the parting is part of the reported sigmas all the same."""
+    _, _, _, report = turning
+    robust = report["sequence"]["robust"]
+    assert robust["focal_rel"] < 0.005 and robust["rotation_deg"] < 0.05
+    for side in ("left", "right"):
+        adjusted = report["sequence"]["evidence"]["focal"][side]["adjustment"]
+        assert adjusted["sigma_px"] >= robust["focal_rel"] * adjusted["focal_px"]
+    assert report["pose"]["sigma_rotation_deg"] >= robust["rotation_deg"]
+
+
 def test_each_frame_gets_its_roll_and_pitch_in_a_world_with_z_up(turning):
     folder, truth, _, report = turning
     up = np.array(truth["gravity_up_world"])

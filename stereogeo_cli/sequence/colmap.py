@@ -112,6 +112,7 @@ class SequenceModel:
     # the stretches left out one at a time (blocks.LeftOut), and the adjustment's cost profile's relative
     # sigma of the focal lengths (the cameras' sigma is the wider of it and the stretches')
     left_out: object = None
+    robust: RobustReading | None = None
     profile_sigma_rel: float = math.inf
 
 
@@ -369,12 +370,14 @@ def map_frames(workspace: Path, database: Path, radial: bool, conf: dict, stop=N
 
 
 def _bundle_adjust(
-    reconstruction, radial: bool, refine_focal: bool, refine_principal_point: bool = False, images=None
-) -> tuple[float, int]:
+    reconstruction, radial: bool, refine_focal: bool, refine_principal_point: bool = False, images=None,
+    robust_scale_px: float | None = None,
+) -> tuple[float, int]:  # fmt: skip
     """COLMAP's bundle adjustment of every registered frame (or only the registered ``images``, by id),
     the rig, the points and the intrinsics (the focal lengths only where ``refine_focal``, the principal
-    point only where ``refine_principal_point``). Returns its final cost (½ Σ r², r in pixels) and its
-    degrees of freedom (residuals less parameters).
+    point only where ``refine_principal_point``), in least squares (or with a Cauchy loss of scale
+    ``robust_scale_px``). Returns its final cost (½ Σ r², r in pixels) and its degrees of freedom
+    (residuals less parameters).
 
     Raises:
         CalibrationFailed: the solver ended without a usable solution (its cost means nothing then).
@@ -387,6 +390,9 @@ def _bundle_adjust(
         refine_sensor_from_rig=True,
         print_summary=False,
     )
+    if robust_scale_px is not None:
+        options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+        options.ceres.loss_function_scale = float(robust_scale_px)
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in reconstruction.reg_image_ids() if images is None else images:
         config.add_image(image_id)
@@ -492,6 +498,48 @@ def _correspondences(reconstruction, left_id: int, right_id: int) -> tuple[np.nd
     if not common:
         return np.zeros((0, 2)), np.zeros((0, 2))
     return tuple(np.array([s[k] for k in common], float) - 0.5 for s in seen)
+
+
+@dataclass(frozen=True)
+class RobustReading:
+    """How far the last adjustment moves when its residuals are weighed robustly (a Cauchy loss at the
+    residuals' own scale) instead of in least squares: the focal lengths' common scale (relative), R and
+    T's direction (degrees). Where the model fits the data (one camera model, a still scene, Gaussian
+    residuals) the two estimators agree to well within their sigmas; where they part, the minimum rests on
+    how the residuals are weighed, not on the data, and the parting is a sigma of its own."""
+
+    focal_rel: float
+    rotation_deg: float
+    direction_deg: float
+    scale_px: float
+
+    def to_report(self) -> dict:
+        return {
+            "focal_rel": self.focal_rel,
+            "rotation_deg": self.rotation_deg,
+            "direction_deg": self.direction_deg,
+            "loss_scale_px": self.scale_px,
+        }
+
+
+def robust_reading(reconstruction, radial: bool, free_centre: bool, stop=None) -> RobustReading:
+    """The last adjustment run again with a Cauchy loss at the model's mean reprojection error
+    (:class:`RobustReading`)."""
+    pycolmap = _pycolmap()
+    if stop is not None and stop.requested:
+        raise Cancelled()
+    scale = max(float(reconstruction.compute_mean_reprojection_error()), 0.1)
+    trial = pycolmap.Reconstruction(reconstruction)
+    _bundle_adjust(
+        trial, radial, refine_focal=True, refine_principal_point=free_centre, robust_scale_px=scale
+    )
+    least, robust = _block_fit(reconstruction), _block_fit(trial)
+    common = 0.5 * sum(math.log(r / q) for r, q in zip(robust.focal_px, least.focal_px, strict=True))
+    cosine = float(robust.T @ least.T / (np.linalg.norm(robust.T) * np.linalg.norm(least.T)))
+    return RobustReading(
+        abs(common), math.degrees(rotation_angle(robust.R @ least.R.T)),
+        math.degrees(math.acos(max(-1.0, min(1.0, cosine)))), scale,
+    )  # fmt: skip
 
 
 def left_out_blocks(reconstruction, radial: bool, free_centre: bool, sizes: tuple, conf: dict, stop=None):
@@ -699,23 +747,24 @@ def reconstruct(
             )
         stage("COLMAP: bundle adjustment")
         cameras, adjusted = adjust(models[0], radial, conf, stop)
-        stage("COLMAP: stretches of frames left out")
+        stage("COLMAP: stretches of frames left out, a robust adjustment")
         sizes = tuple((start.height, start.width) for start in starts)
         free_centre = cameras[0].principal_point_refined
         left_out = left_out_blocks(adjusted, radial, free_centre, sizes, conf, stop)
-        return _with_left_out(read_model((cameras, adjusted), len(models)), left_out)
+        robust = robust_reading(adjusted, radial, free_centre, stop)
+        return _with_readings(read_model((cameras, adjusted), len(models)), left_out, robust)
 
 
-def _with_left_out(model: SequenceModel, left_out) -> SequenceModel:
-    """The model with the left-out stretches' reading: each focal length's sigma the wider of the cost
-    profile's and the stretches' jackknife (the profile measures how sharply the adjustment's own model
-    ties the focal lengths, the stretches how far the data move them)."""
-    if left_out is None:
-        return model
+def _with_readings(model: SequenceModel, left_out, robust: RobustReading) -> SequenceModel:
+    """The model with the other readings of its focal lengths: each one's sigma the widest of the cost
+    profile's, the left-out stretches' jackknife and the robust adjustment's parting (the profile measures
+    how sharply the adjustment's own model ties the focal lengths; the stretches how far the data move
+    them; the robust loss how far the weighing of the residuals does)."""
+    others = [robust.focal_rel] + ([] if left_out is None else [left_out.focal_sigma_rel])
     cameras = []
     for camera in model.cameras:
         profile = camera.sigma_focal_px / camera.focal_px
-        wider = max(profile, left_out.focal_sigma_rel) if math.isfinite(profile) else profile
+        wider = max(profile, *others) if math.isfinite(profile) else profile
         cameras.append(replace(camera, sigma_focal_px=camera.focal_px * wider))
     profile = model.cameras[0].sigma_focal_px / model.cameras[0].focal_px
-    return replace(model, cameras=tuple(cameras), left_out=left_out, profile_sigma_rel=profile)
+    return replace(model, cameras=tuple(cameras), left_out=left_out, robust=robust, profile_sigma_rel=profile)

@@ -279,15 +279,15 @@ def calibrate_frames(
 
 
 def _rig_spread(model) -> tuple[float, float]:
-    """R's and T's direction's 1-sigma from the frames (degrees): the wider of the right camera's poses
-    located alone (:func:`colmap.rig_sigmas`) and the left-out stretches' jackknife."""
-    spread = colmap.rig_sigmas(model)
-    if model.left_out is None:
-        return spread
-    return (
-        max(spread[0], model.left_out.rotation_sigma_deg),
-        max(spread[1], model.left_out.direction_sigma_deg),
-    )
+    """R's and T's direction's 1-sigma from the frames (degrees): the widest of the right camera's poses
+    located alone (:func:`colmap.rig_sigmas`), the left-out stretches' jackknife and the robust
+    adjustment's parting (:class:`colmap.RobustReading`)."""
+    readings = [colmap.rig_sigmas(model)]
+    if model.left_out is not None:
+        readings.append((model.left_out.rotation_sigma_deg, model.left_out.direction_sigma_deg))
+    if model.robust is not None:
+        readings.append((model.robust.rotation_deg, model.robust.direction_deg))
+    return max(r[0] for r in readings), max(r[1] for r in readings)
 
 
 def _with_vertical_segments(model, read: FrameReadings, readings_up: tuple, conf: dict, notes: list[str]):
@@ -398,6 +398,8 @@ def _sequence_block(frames, model, focals, attitudes, up, span, scale) -> dict:
         "focal_observable": all(f.observable for f in focals),
         # the stretches of frames left out one at a time: their jackknife sigmas and the row check
         "left_out": None if model.left_out is None else model.left_out.to_report(),
+        # the last adjustment with a robust loss: how far it parts from the least-squares one
+        "robust": None if model.robust is None else model.robust.to_report(),
         "adjustment_profile_sigma_rel": finite(model.profile_sigma_rel),
         "evidence": {
             "focal": {side: f.to_report() for side, f in zip(("left", "right"), focals, strict=True)},
