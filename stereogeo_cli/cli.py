@@ -383,6 +383,25 @@ def _print_summary(result, console) -> None:
         warnings_console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
 
 
+# options that several commands take alike
+FormatsOption = Annotated[
+    str,
+    typer.Option(
+        "--format",
+        help="Comma-separated output formats to write: opencv, ros, kalibr, colmap, json.",
+    ),
+]
+JsonOption = Annotated[
+    bool, typer.Option("--json", help="Print the JSON report on stdout, and nothing else there.")
+]
+BaselineOption = Annotated[
+    float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
+]
+ModelOption = Annotated[
+    Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
+]
+
+
 PinholeFlag = Annotated[
     bool,
     typer.Option(
@@ -439,24 +458,11 @@ ExifFlag = Annotated[
 _CalibrateOutput = Annotated[
     Path | None, typer.Option("--output", "-o", help="Folder to write the calibration files into.")
 ]
-_CalibrateFormats = Annotated[
-    str,
-    typer.Option(
-        "--format",
-        help="Comma-separated output formats to write: opencv, ros, kalibr, colmap, json.",
-    ),
-]
-_CalibrateJsonOut = Annotated[
-    bool, typer.Option("--json", help="Print the JSON report on stdout, and nothing else there.")
-]
 _CalibratePreview = Annotated[
     Path | None,
     typer.Option(
         help="Write the rectified pair side by side, with rows every 32 px and the horizons, to this PNG."
     ),
-]
-_CalibrateBaseline = Annotated[
-    float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
 ]
 _CalibrateFocalLeft = Annotated[
     float | None, typer.Option(help="The left camera's focal length in pixels, if known.")
@@ -471,9 +477,6 @@ _CalibrateFocalSigma = Annotated[
         "become priors combined with the network's reading instead of being held fixed."
     ),
 ]
-_CalibrateModel = Annotated[
-    Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
-]
 
 
 @app.command()
@@ -482,10 +485,10 @@ def calibrate(
     right: Annotated[Path, typer.Argument(help="The right image.")],
     *,
     output: _CalibrateOutput = None,
-    formats: _CalibrateFormats = "opencv,ros,kalibr,colmap,json",
-    json_out: _CalibrateJsonOut = False,
+    formats: FormatsOption = "opencv,ros,kalibr,colmap,json",
+    json_out: JsonOption = False,
     preview: _CalibratePreview = None,
-    baseline: _CalibrateBaseline = None,
+    baseline: BaselineOption = None,
     focal_left: _CalibrateFocalLeft = None,
     focal_right: _CalibrateFocalRight = None,
     focal_sigma: _CalibrateFocalSigma = None,
@@ -493,7 +496,7 @@ def calibrate(
     lines: LinesFlag = True,
     exif: ExifFlag = True,
     rotate: RotateOption = 0,
-    model: _CalibrateModel = None,
+    model: ModelOption = None,
     threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core but one).")] = 0,
 ) -> None:
     """Calibrate a stereo camera from one image pair: focal lengths, gravity (roll, pitch), R and T."""
@@ -572,19 +575,6 @@ _BatchOutput = Annotated[
         "--output", "-o", help="Folder for the results: <pair>/ per pair, summary.csv and summary.json."
     ),
 ]
-_BatchFormats = Annotated[
-    str,
-    typer.Option(
-        "--format",
-        help="Comma-separated output formats to write: opencv, ros, kalibr, colmap, json.",
-    ),
-]
-_BatchBaseline = Annotated[
-    float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the length of T.")
-]
-_BatchModel = Annotated[
-    Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
-]
 _BatchThreads = Annotated[
     int, typer.Option(help="Threads for the network in all (0: one per core), shared by the workers.")
 ]
@@ -619,13 +609,13 @@ def batch_calibrate(
     folder: _BatchFolder,
     *,
     output: _BatchOutput,
-    formats: _BatchFormats = "opencv,ros,kalibr,colmap,json",
-    baseline: _BatchBaseline = None,
+    formats: FormatsOption = "opencv,ros,kalibr,colmap,json",
+    baseline: BaselineOption = None,
     pinhole: PinholeFlag = False,
     lines: LinesFlag = True,
     exif: ExifFlag = True,
     rotate: RotateOption = 0,
-    model: _BatchModel = None,
+    model: ModelOption = None,
     threads: _BatchThreads = 0,
     workers: Annotated[int, typer.Option(help="Pairs calibrated in parallel, one process each.")] = 1,
     same_rig: _BatchSameRig = False,
@@ -751,9 +741,6 @@ _SequenceOverwrite = Annotated[
         "refused).",
     ),
 ]
-_SequenceJsonOut = Annotated[
-    bool, typer.Option("--json", help="Print the JSON report on stdout, and nothing else there.")
-]
 _SequenceBaseline = Annotated[
     float | None, typer.Option(help="The rig's baseline in metres, if known; it sets the metric scale.")
 ]
@@ -767,9 +754,6 @@ _SequenceStampTolerance = Annotated[
 _SequenceWorkspace = Annotated[
     Path | None,
     typer.Option(help="Keep COLMAP's images and database in this folder (default: a temporary one)."),
-]
-_SequenceModel = Annotated[
-    Path | None, typer.Option(help="The ONNX model to use (default: the model shipped with stereogeo).")
 ]
 _SequenceProgress = Annotated[
     bool,
@@ -794,13 +778,13 @@ def calibrate_sequence(
     max_frames: Annotated[int | None, typer.Option(help="Use at most this many frame pairs.")] = None,
     formats: _SequenceFormats = "opencv,ros,kalibr,colmap,json",
     overwrite: _SequenceOverwrite = False,
-    json_out: _SequenceJsonOut = False,
+    json_out: JsonOption = False,
     baseline: _SequenceBaseline = None,
     pinhole: PinholeFlag = False,
     rotate: RotateOption = 0,
     stamp_tolerance: _SequenceStampTolerance = None,
     workspace: _SequenceWorkspace = None,
-    model: _SequenceModel = None,
+    model: ModelOption = None,
     threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core but one).")] = 0,
     progress: _SequenceProgress = True,
 ) -> None:
