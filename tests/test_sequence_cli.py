@@ -320,7 +320,7 @@ def test_sigterm_at_any_moment_exits_143_with_one_line_and_leaves_nothing(tmp_pa
     out = tmp_path / "out"
     running = _Running(turning[0], "-o", out, env={**os.environ, "TMPDIR": str(temporary)})
     if moment == "while Python starts":
-        time.sleep(0.3)
+        time.sleep(0.5)  # its handler is in place within about 0.1 s: the libraries are loading
     else:
         running.wait_for("loading the network" if moment == "while frames are read" else "reading")
         time.sleep(1.0)
