@@ -433,3 +433,35 @@ def test_help_into_a_closed_pipe_is_no_traceback(tmp_path):
     process.stdout.close()  # the reader is gone before the help is written
     stderr = process.communicate(timeout=300)[1]
     assert "Traceback" not in stderr and process.returncode in (0, 1), stderr
+
+
+def test_a_stage_line_fits_a_narrow_terminal_and_each_stage_shows_its_time(capsys):
+    """On a terminal: the stage's name is cut short before its bar, count and times are pushed off the line
+    (a long source path once did that); without one: one log line per stage, with its count and time."""
+    import io
+
+    from rich.console import Console
+
+    from stereogeo_cli.jobs import progress as progress_module
+
+    screen = io.StringIO()
+    bar = progress_module.StageProgress(
+        "bar", Console(file=screen, force_terminal=True, width=60, color_system=None)
+    )
+    with bar:
+        bar(0, 16, "reading frames of /a/very/long/path/to/a/recording/that/goes/on/and/on/seq")
+        bar(16, 16)
+        bar(0, None, "COLMAP: mapping")
+    last = screen.getvalue().split("\x1b[2K")[-1]
+    lines = [line for line in last.replace("\r", "\n").split("\n") if line.strip() and "\x1b" not in line]
+    assert lines and all(len(line) <= 60 for line in lines), lines
+    assert any("16/16" in line for line in lines)
+
+    log = progress_module.StageProgress("log")
+    with log:
+        log(0, 3, "reading frames")
+        log(3, 3)
+        log(0, None, "COLMAP: mapping")
+    err = capsys.readouterr().err.splitlines()
+    assert [STAGE_LINE.match(line) is not None for line in err] == [True, True]
+    assert err[0].startswith("reading frames, 3 of 3: ") and err[1].startswith("COLMAP: mapping: ")

@@ -57,10 +57,11 @@ class StageProgress:
     """A long command's stages on stderr, called as ``progress(done, total, stage)`` (a new ``stage``
     starts a stage). ``mode``: "bar", a live line per stage on a terminal (what it does, a bar and the count
     where they are known, the time spent and, where counted, left), each left standing when it ends; "log",
-    one plain line per stage as it ends (what it did, its count, the time spent); "off": nothing."""
+    one plain line per stage as it ends (what it did, its count, the time spent); "off": nothing.
+    ``console``: the Rich console of the bar (default: stderr's)."""
 
-    def __init__(self, mode: str):
-        self.mode = mode
+    def __init__(self, mode: str, console=None):
+        self.mode, self._console = mode, console
         self._bar = self._task = self._stage = None
         self._done, self._total, self._start = 0, None, 0.0
 
@@ -76,7 +77,7 @@ class StageProgress:
                                                                      overflow="ellipsis")),
                 BarColumn(bar_width=20), TextColumn("{task.fields[count]}"), TimeElapsedColumn(),
                 TimeRemainingColumn(),
-                console=Console(stderr=True), transient=False,
+                console=self._console or Console(stderr=True), transient=False,
             )  # fmt: skip
             self._bar.start()
         return self
