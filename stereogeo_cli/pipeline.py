@@ -56,6 +56,7 @@ from stereogeo_cli.refine.manhattan import ManhattanFocal, stable_manhattan_foca
 from stereogeo_cli.refine.manhattan import default_conf as manhattan_conf
 from stereogeo_cli.refine.plumb import PlumbLens, plumb_line_distortion
 from stereogeo_cli.refine.plumb import default_conf as plumb_conf
+from stereogeo_cli.settings import resolve
 
 default_conf = {
     "min_mean_confidence": 0.05,  # below this mean field confidence a view is too ambiguous to calibrate
@@ -403,10 +404,10 @@ class Calibrator:
         *,
         first_pair: tuple[np.ndarray, np.ndarray] | None = None,
     ):
-        self.conf = {**default_conf, **(conf or {})}
-        self.conf["lines"] = {**lines_conf, **self.conf["lines"]}
-        self.conf["plumb"] = {**plumb_conf, **self.conf["plumb"]}
-        self.conf["manhattan"] = {**manhattan_conf, **self.conf["manhattan"]}
+        self.conf = resolve(default_conf, conf)
+        self.conf["lines"] = resolve(lines_conf, self.conf["lines"])
+        self.conf["plumb"] = resolve(plumb_conf, self.conf["plumb"])
+        self.conf["manhattan"] = resolve(manhattan_conf, self.conf["manhattan"])
         # the features and the straight edges' detection need no network output: they run on the pool's
         # threads while ONNX Runtime runs (all three release the GIL)
         self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="stereogeo-pool")
@@ -457,7 +458,7 @@ class Calibrator:
         self._learned_scale_sigma = float(scale_sigma) if scale_sigma is not None else None
         depth_sigma = self.network.metadata.get("depth_sigma_scale_rel")
         self._depth_scale_sigma = float(depth_sigma) if depth_sigma is not None else None
-        self.conf["scale"] = {**scale_conf, **self.conf["scale"]}
+        self.conf["scale"] = resolve(scale_conf, self.conf["scale"])
 
     def reported_sigma(
         self,
@@ -507,7 +508,7 @@ class Calibrator:
         three times: its fields, a combined focal length held, its vertical segments)."""
         kept = self._view_samples.get(id(view))
         if kept is None or kept[0] is not view:
-            conf = {**refine_default_conf, **self.conf["refine"]}
+            conf = resolve(refine_default_conf, self.conf["refine"])
             samples = field_samples(
                 view.up, view.latitude, view.up_confidence, view.latitude_confidence, view.pixel_xy, conf
             )

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from stereogeo_cli.settings import resolve
+
 default_conf = {
     "max_side": 1200,  # images are shrunk so their long side is at most this before detection
     "max_features": 4000,  # SIFT keypoints per image
@@ -82,7 +84,7 @@ class Features:
 def detect_features(image: np.ndarray, conf: dict | None = None) -> Features:
     """SIFT keypoints of one image (H x W x 3 uint8 RGB, or grey), in original pixel coordinates. The two
     images of a pair are independent: the pipeline detects them on two threads."""
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     grey, scale = _grey_and_scale(image, conf["max_side"])
     keypoints, descriptors = cv2.SIFT_create(nfeatures=conf["max_features"]).detectAndCompute(grey, None)
     xy = np.array([kp.pt for kp in keypoints], dtype=float).reshape(-1, 2)
@@ -91,7 +93,7 @@ def detect_features(image: np.ndarray, conf: dict | None = None) -> Features:
 
 def match_detected(left: Features, right: Features, conf: dict | None = None) -> Matches:
     """The matches between two images' features (:func:`mutual_ratio_matches` on their descriptors)."""
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     features = (len(left.xy), len(right.xy))
     empty = Matches(np.zeros((0, 2)), np.zeros((0, 2)), features)
     if left.descriptors is None or right.descriptors is None or len(left.xy) < 2 or len(right.xy) < 2:

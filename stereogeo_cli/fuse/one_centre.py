@@ -39,6 +39,7 @@ import numpy as np
 
 from stereogeo_cli.geometry.rotation import closest_rotation, rotation_from_axis_angle
 from stereogeo_cli.refine.levenberg import Settings, levenberg_marquardt
+from stereogeo_cli.settings import resolve
 
 default_conf = {
     "start_threshold_px": 3.0,  # RANSAC threshold of the homography the fit may start from, pixels
@@ -71,7 +72,7 @@ def essential_gric(
 ) -> float:
     """GRIC of an essential matrix (with ``parameters`` in all: its 5 and what was refined with it) from its
     matches' Sampson errors in pixels."""
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     squared = (np.asarray(sampson_px) / noise_px) ** 2
     return gric(squared, _ESSENTIAL_DIM, parameters, conf["gric_lambda3"])
 
@@ -255,7 +256,7 @@ def fit_rotation(
             the image's width and height.
         min_noise_px: the floor of the noise the covariances are computed at (the fusion's).
     """
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     left, right = np.asarray(matches.left, float), np.asarray(matches.right, float)
     free = ~np.asarray(held, dtype=bool)
     n = int(free.sum())

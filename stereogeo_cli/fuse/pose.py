@@ -33,6 +33,7 @@ from stereogeo_cli.geometry.rotation import (
     skew,
 )
 from stereogeo_cli.refine.levenberg import Settings, levenberg_marquardt
+from stereogeo_cli.settings import resolve
 
 default_conf = {
     "min_matches": 20,  # fewer matches than this: the pose head and gravity alone
@@ -230,7 +231,7 @@ def essential_pose(matches: Matches, K_left: np.ndarray, K_right: np.ndarray, co
     RANSAC is run too and the matrix that more matches fit within the threshold is kept (conf
     ``essential_second_opinion``; off, this is OpenCV's findEssentialMat + recoverPose and nothing else).
     """
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     if len(matches) < 5:
         return None
     nl, nr = _normalise(matches.left, K_left), _normalise(matches.right, K_right)
@@ -340,7 +341,7 @@ def fuse_relative_pose(
         (robust Sampson error) with soft gravity coupling (R·g_left = g_right) and the pose head as a
         prior. Otherwise the pose head, rotated by the least amount that makes it agree with gravity.
     """
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     has_gravity = gravity_left is not None and gravity_right is not None and gravity_sigma_rad
     given = _Given(
         matches, K_left, K_right, gravity_left if has_gravity else None, gravity_right, gravity_sigma_rad,

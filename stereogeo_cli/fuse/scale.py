@@ -26,6 +26,7 @@ from stereogeo_cli.fuse.matches import Matches
 from stereogeo_cli.fuse.pose import _normalise, ray_angles
 from stereogeo_cli.geometry import ResizeCrop, undistort_division
 from stereogeo_cli.refine.lm import weighted_median
+from stereogeo_cli.settings import resolve
 
 default_conf = {
     "enabled": True,  # calibrate takes the baseline this way when the model has a depth head
@@ -122,7 +123,7 @@ def baseline_from_depth(
     """The metric |T| the matches and the left view's depth field agree on, or None (too few usable
     matches). ``K_*``, ``R``, ``t_direction`` and ``distortion`` are the fused calibration (original
     pixels)."""
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     if len(matches) < conf["min_votes"]:
         return None
     z_unit, angle, off_plane = triangulate_unit(

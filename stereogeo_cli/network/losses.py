@@ -14,6 +14,7 @@ from stereogeo_cli.network.model import OUTPUT_STRIDE
 from stereogeo_cli.network.runtime import cell_pixel_coordinates
 from stereogeo_cli.refine import initial_estimate
 from stereogeo_cli.refine.torch_twin import refine_batch
+from stereogeo_cli.settings import resolve
 
 default_conf = {
     "up_weight": 1.0,  # L1 of the up-vector field
@@ -219,7 +220,7 @@ def compute_losses(
 
     ``teacher``: a frozen teacher's outputs on the batch, held to on its pure-rotation pairs
     (``teacher_weight``)."""
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     has_gravity = torch.isfinite(batch["gravity"]).all(-1)  # [B x 2]
     losses = _field_losses(out, batch, conf, with_refiner, has_gravity)
     losses.update(_pose_losses(out, batch, conf))

@@ -9,7 +9,6 @@ must be multiples of 32.
 
 from __future__ import annotations
 
-import copy
 import math
 from typing import Any
 
@@ -18,6 +17,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from stereogeo_cli.network.runtime import DEPTH_STRIDE, VIEW_OUTPUTS
+from stereogeo_cli.settings import resolve
 
 OUTPUT_STRIDE = 4  # fields are predicted at 1/4 of the input resolution
 INPUT_MULTIPLE = 32  # input height and width must be multiples of the encoder's total stride
@@ -475,7 +475,7 @@ class StereoGeoNet(nn.Module):
 
     def __init__(self, conf: dict[str, Any] | None = None):
         super().__init__()
-        self.conf = {**copy.deepcopy(self.default_conf), **(conf or {})}
+        self.conf = resolve(self.default_conf, conf)
         unknown = set(self.conf) - set(self.default_conf)
         if unknown:
             raise ValueError(f"unknown StereoGeoNet options: {sorted(unknown)}")

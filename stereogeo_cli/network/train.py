@@ -35,6 +35,7 @@ from stereogeo_cli.network.losses import compute_losses
 from stereogeo_cli.network.losses import default_conf as loss_defaults
 from stereogeo_cli.network.model import OUTPUT_STRIDE, StereoGeoNet
 from stereogeo_cli.network.runtime import file_sha256
+from stereogeo_cli.settings import resolve
 
 SETTINGS: dict[str, tuple[Any, str]] = {  # name: (default, what it does)
     "data": ([], "Dataset folders (left/, right/, calib.jsonl) to train on."),
@@ -397,7 +398,7 @@ class _Run:
 
 def train(conf: dict) -> dict:
     """Train; returns the last validation metrics (empty without a validation set)."""
-    conf = {**default_conf, **conf}
+    conf = resolve(default_conf, conf)
     rank, world = _distributed()
     torch.set_num_threads(int(conf["threads"]))
     torch.manual_seed(conf["seed"])

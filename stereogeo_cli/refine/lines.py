@@ -23,6 +23,7 @@ import numpy as np
 from stereogeo_cli.geometry.camera import principal_point
 from stereogeo_cli.geometry.fields import up_at
 from stereogeo_cli.refine.lm import CameraFit, FieldSamples, refine_camera
+from stereogeo_cli.settings import resolve
 
 default_conf = {
     "enabled": True,
@@ -181,7 +182,7 @@ def gravity_with_lines(
     vector, focal length in the fields' pixels) of a fit the caller has (the fields' own): the first fit
     starts there instead of from the fields' rough read.
     """
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     if pixel_xy is None:
         h, w = np.shape(latitude)
         pixel_xy = tuple(np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float)))

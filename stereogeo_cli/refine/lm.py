@@ -22,6 +22,7 @@ from stereogeo_cli.geometry.gravity import (
     tangent_basis,
 )
 from stereogeo_cli.refine.levenberg import Settings, covariance, levenberg_marquardt
+from stereogeo_cli.settings import resolve
 
 default_conf = {
     "max_iterations": 30,  # LM steps, accepted or rejected
@@ -347,7 +348,7 @@ def initial_estimate(
     the best of a few vFoV candidates by the refiner's own cost. Arrays are the N field samples
     (up [N x 2], the others [N]); a known ``gravity`` or ``focal`` is kept.
     """
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     cx, cy = principal_point(width, height)
     if gravity is None:
         near = (np.abs(x - cx) < 0.1 * width + 1) & (np.abs(y - cy) < 0.1 * height + 1)
@@ -404,7 +405,7 @@ def refine_camera(
     Returns:
         A :class:`CameraFit` in the pixels of ``image_size``.
     """
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     latitude = np.asarray(latitude, dtype=float)
     width, height = (latitude.shape[1], latitude.shape[0]) if image_size is None else image_size
     cx, cy = principal_point(width, height)

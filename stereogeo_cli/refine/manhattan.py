@@ -35,6 +35,7 @@ import numpy as np
 from stereogeo_cli.geometry.camera import principal_point
 from stereogeo_cli.geometry.gravity import tangent_basis
 from stereogeo_cli.refine.levenberg import Settings, covariance, levenberg_marquardt
+from stereogeo_cli.settings import resolve
 
 default_conf = {
     "enabled": True,
@@ -228,7 +229,7 @@ def manhattan_focal(
 
     ``detector_px``: the size of the detector's pixel in image pixels (the loss scale is in the former).
     """
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     width, height = image_size
     segments = np.asarray(segments, dtype=float).reshape(-1, 4)
     length = np.linalg.norm(segments[:, 2:] - segments[:, :2], axis=1)

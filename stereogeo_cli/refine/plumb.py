@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stereogeo_cli.settings import resolve
+
 default_conf = {
     "enabled": True,
     # trial distortions, as the stretch kappa·r² at the image's corner (r: half the diagonal); below about
@@ -177,7 +179,7 @@ def plumb_line_distortion(
         detector_scale: image pixels per detector pixel (the detector may run on a reduced copy); the
             border margin and the misfit clip are in detector pixels.
     """
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     corner = 0.5 * float(np.hypot(*size))
     chains = _long_edges(segments, size, center, detector_scale, conf)
     if len(chains) < conf["min_chains"]:

@@ -15,6 +15,7 @@ import math
 import torch
 
 from stereogeo_cli.refine.levenberg import DIAGONAL_FLOOR, LAMBDA_DOWN, LAMBDA_FLOOR, LAMBDA_UP
+from stereogeo_cli.settings import resolve
 
 default_conf = {
     "steps": 10,  # unrolled LM steps
@@ -143,7 +144,7 @@ def refine_batch(
     Returns:
         gravity [B x 3] (unit up vectors) and focal [B] in pixels.
     """
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     batch = up.shape[0]
     x = x.expand(batch, -1) if x.dim() == 1 else x
     y = y.expand(batch, -1) if y.dim() == 1 else y

@@ -30,6 +30,7 @@ from stereogeo_cli.errors import CalibrationFailed
 from stereogeo_cli.geometry import rotation_angle
 from stereogeo_cli.sequence import blocks
 from stereogeo_cli.sequence.blocks import BlockFit
+from stereogeo_cli.settings import resolve
 
 SENSORS = ("left", "right")  # the image folders of the workspace, and COLMAP's image-name prefixes
 
@@ -298,7 +299,7 @@ def match_frames(
     each frame with each other. ``features``: per image name (``left/000000.png``) its
     :func:`image_features` (else COLMAP extracts its own)."""
     pycolmap = _pycolmap()
-    conf = {**default_conf, **conf}
+    conf = resolve(default_conf, conf)
     database = workspace / "database.db"
     database.unlink(missing_ok=True)
     with pycolmap.Database.open(database):  # a new, empty database
@@ -359,7 +360,7 @@ def _mapping_options(pycolmap, radial: bool, conf: dict):
 def map_frames(workspace: Path, database: Path, radial: bool, conf: dict, stop=None) -> list:
     """COLMAP's incremental mapping of the matched frames: its models, largest first."""
     pycolmap = _pycolmap()
-    conf = {**default_conf, **conf}
+    conf = resolve(default_conf, conf)
     out = workspace / "mapping"
     out.mkdir(exist_ok=True)
     models = _cancellable(
@@ -548,7 +549,7 @@ def left_out_blocks(reconstruction, radial: bool, free_centre: bool, sizes: tupl
     was run: the focal lengths and the lens refined, the principal points where they were freed). None
     where the sequence has too few frames for the conf's ``blocks``. ``sizes``: ((h, w) left, right)."""
     pycolmap = _pycolmap()
-    settings = {**blocks.default_conf, **conf.get("blocks", {})}
+    settings = resolve(blocks.default_conf, conf.get("blocks"))
     frames = _frames(reconstruction)
     both = [name for name, ids in frames.items() if len(ids) == 2]
     if len(both) < settings["blocks"] * settings["min_block_frames"]:
@@ -726,7 +727,7 @@ def reconstruct(
     Raises:
         CalibrationFailed: COLMAP made no model of at least ``min_model_frames`` frames.
     """
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     workspace = Path(workspace)
 
     def stage(name: str) -> None:

@@ -21,6 +21,7 @@ import numpy as np
 from stereogeo_cli.fuse.assemble import finite
 from stereogeo_cli.geometry import roll_pitch_from_gravity
 from stereogeo_cli.rig.combine import combine_directions
+from stereogeo_cli.settings import resolve
 
 default_conf = {
     # relative 1-sigma the adjustment's focal length keeps whatever its cost profile says: a real camera's
@@ -109,7 +110,7 @@ def combine_adjusted_focal(
     the adjustment carries it and the rig turned by ``rotation_span_deg`` (None: unknown) enough. Where the
     rig also moved less than the conf's ``still_travel_baselines`` (``travel_baselines``: how far its
     camera moved, in rig baselines; None: unknown), it stood still and the adjustment is left out."""
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     f_a, f_p = adjusted.focal_px, pairs.focal_px
     floor = conf["focal_floor_rel_free_centre" if adjusted.principal_point_refined else "focal_floor_rel"]
     s_a = math.hypot(adjusted.sigma_focal_px / f_a, floor)
@@ -147,7 +148,7 @@ def rig_sigmas_deg(
     """R's and T's direction's reported 1-sigma (degrees): the frames' own spread (``spread``, from
     :func:`~stereogeo_cli.sequence.colmap.rig_sigmas`) with what the principal points' uncertainty adds
     (σ_pp / f for the less certain camera) in quadrature. ``sizes``: ((h, w) left, right)."""
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     floor = 0.0
     for camera, (height, width) in zip(cameras, sizes, strict=True):
         share = conf[
@@ -183,7 +184,7 @@ def world_up(readings, cam_from_world: dict[int, np.ndarray], R: np.ndarray, con
     index its :class:`~stereogeo_cli.rig.evidence.PairEvidence`), its 1-sigma (degrees) and how many readings
     it used: :func:`stereogeo_cli.rig.combine.combine_directions`, readings farther than
     ``up_reject_sigmas`` left out, the sigma at least the median sigma over ``up_common_factor``."""
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     ups, sigmas = _up_readings(readings, cam_from_world, R)
     if len(ups) == 0:
         return None, None, 0
@@ -201,7 +202,7 @@ def up_from_segments(normals: np.ndarray, owners: np.ndarray, start: np.ndarray,
     one image share its pose's error): a drive straight ahead, whose vertical segments are all seen from
     one side, fixes the up's roll well and its pitch barely, and the information says so. Returns (up [3],
     information, segments used), or (None, None, 0) where too few images show vertical segments."""
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     up = np.asarray(start, float) / np.linalg.norm(start)
     used = np.zeros(len(normals), bool)
     for within in conf["vertical_within_deg"]:

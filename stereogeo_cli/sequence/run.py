@@ -57,6 +57,7 @@ from stereogeo_cli.sequence.evidence import (
     world_up,
 )
 from stereogeo_cli.sequence.sources import FramePair, FrameSource
+from stereogeo_cli.settings import resolve
 
 default_conf = {
     # pairs calibrated as ``calibrate`` does, at most about this many (evenly spaced): the evidence of the
@@ -95,7 +96,7 @@ def _write_frame(
     """The frame's two images as PNG files of the workspace (COLMAP reads files), and their features and
     line segments (``found``: the dicts they go into, by image name)."""
     features, segments = found
-    max_features = {**colmap.default_conf, **conf["colmap"]}["max_features"]
+    max_features = resolve(colmap.default_conf, conf["colmap"])["max_features"]
     for sensor, image in zip(colmap.SENSORS, (frame.left, frame.right), strict=True):
         name = f"{sensor}/{file_name}"
         features[name] = colmap.image_features(image, max_features)
@@ -143,7 +144,7 @@ def read_frames(
     its pair as ``calibrate`` does: every pair of a sequence of up to ``max_pairs_calibrated``, else evenly
     spaced pairs up to about that many (they are evidence to combine, and each costs a calibration), each
     turned by ``rotate`` degrees as ``Calibrator.calibrate`` does."""
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     for sensor in colmap.SENSORS:
         (images / sensor).mkdir(parents=True, exist_ok=True)
     frames: list[FramePair] = []
@@ -216,7 +217,7 @@ def calibrate_frames(
     notes = [*warnings, *read.warnings]
     start = time.perf_counter()
     starts, pair_focals, R0, T0 = _start(read, pinhole)
-    conf = {**default_conf, **(conf or {})}
+    conf = resolve(default_conf, conf)
     try:
         model = colmap.reconstruct(
             workspace, starts, R0, T0, conf["colmap"], stop, read.features, progress=progress
