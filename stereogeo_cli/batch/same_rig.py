@@ -34,8 +34,8 @@ from stereogeo_cli.rig.combine import (
     FocalWidening,
     chordal_mean,
     pairs_focals,
-    read_from_images,
     reported_focal_sigma_rel,
+    widenings,
 )
 from stereogeo_cli.rig.evidence import PairEvidence
 from stereogeo_cli.rig.start import rig_baseline
@@ -201,9 +201,7 @@ def same_rig_calibration(
     model_id = (model_info.get("file"), model_info.get("sha256"))
     # the rig's focal lengths are reported as a single pair's are: widened for photographs and by the
     # network's bias on a camera unless an EXIF prior took part (Calibrator.reported_sigma)
-    widenings = tuple(
-        FocalWidening.of(calibrator(), own) for own in read_from_images([o.evidence for o in ok])
-    )
-    rig = calibrate_rig(ok, second, focals, baseline_m, model_id, pinhole=job.pinhole, widenings=widenings)
+    widened = widenings(calibrator(), [o.evidence for o in ok])
+    rig = calibrate_rig(ok, second, focals, baseline_m, model_id, pinhole=job.pinhole, widenings=widened)
     rig = with_rotation_noted(rig, job.rotate)
     return replace(rig, timing_ms={"total": (time.perf_counter() - start) * 1e3})  # the same-rig stage

@@ -113,6 +113,13 @@ class FocalWidening:
         return cls(calibrator.photo_sigma_scale[2], conf["camera_bias_sigma"], conf["read_spread"])
 
 
+def widenings(calibrator, evidence: Sequence[PairEvidence]) -> tuple[FocalWidening, FocalWidening]:
+    """Each camera's :class:`FocalWidening` under ``calibrator`` for a rig of these pairs: a single pair's
+    where the focal length is the images' read alone (:func:`read_from_images`), none where a prior took
+    part."""
+    return tuple(FocalWidening.of(calibrator, own) for own in read_from_images(evidence))
+
+
 def reported_focal_sigma_rel(estimate: FocalEstimate, widening: FocalWidening, moved: float = 1.0) -> tuple:
     """The relative sigma of ``estimate`` as a rig reports it, and the relative spread added to it in
     quadrature (:func:`stereogeo_cli.fuse.assemble.focal_sigmas` takes the two): ``moved`` is how much a

@@ -42,7 +42,7 @@ from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.text import plural
 from stereogeo_cli.pipeline import with_rotation_noted
 from stereogeo_cli.refine.lines import detect_segments
-from stereogeo_cli.rig.combine import FocalEstimate, FocalWidening, pairs_focals, read_from_images, reported
+from stereogeo_cli.rig.combine import FocalEstimate, FocalWidening, pairs_focals, reported, widenings
 from stereogeo_cli.rig.evidence import PairEvidence
 from stereogeo_cli.rig.start import rig_baseline, rig_pose
 from stereogeo_cli.sequence import colmap
@@ -176,9 +176,8 @@ def read_frames(
         raise StereoGeoError(f"{source.description}: a sequence needs 2 frame pairs or more ({read} read)")
     if not readings:
         raise CalibrationFailed("no frame pair of the sequence could be calibrated")
-    own = read_from_images(list(readings.values()))
-    widenings = tuple(FocalWidening.of(calibrator, from_images) for from_images in own)
-    return FrameReadings(frames, readings, sizes, warnings, features, segments, widenings)
+    widened = widenings(calibrator, list(readings.values()))
+    return FrameReadings(frames, readings, sizes, warnings, features, segments, widened)
 
 
 def _start(read: FrameReadings, pinhole: bool) -> tuple:
