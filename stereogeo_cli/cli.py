@@ -130,7 +130,8 @@ _MakeDataSequence = Annotated[
     str | None,
     typer.Option(
         help="Render one sequence of a stereo rig moving through one scene instead of independent pairs: "
-        "straight, turning, handheld or static (per-frame ground truth in calib.json)."
+        "straight, turning, handheld, static, or drive (a car's rig on a road at 10 Hz; per-frame ground "
+        "truth in calib.json)."
     ),
 ]
 _MakeDataSize = Annotated[
@@ -198,6 +199,52 @@ _MakeDataPhotoSplit = Annotated[
     str,
     typer.Option(help="With --photos: the half of benchmarks/real_photos_split.json to use (train, all)."),
 ]
+_MakeDataPrincipalOffset = Annotated[
+    str | None,
+    typer.Option(
+        metavar="DX,DY",
+        help="Sequences: move the principal point from the image centre by DX·width, DY·height (each "
+        "within ±0.03), the same in both cameras; 'random' draws them from the seed.",
+    ),
+]
+_MakeDataFocalAspect = Annotated[
+    float, typer.Option(help="Sequences: render with fy = fx × this (0.95–1.05; 1: square pixels).")
+]
+_MakeDataH264 = Annotated[
+    float | None,
+    typer.Option(
+        "--h264",
+        metavar="KBPS",
+        help="Sequences: pass the frames through an H.264 encode and decode at this bitrate in kbit/s "
+        "(libx264 through PyAV) before they are written as PNG.",
+    ),
+]
+_MakeDataKeepVideo = Annotated[
+    bool,
+    typer.Option(
+        "--keep-video",
+        help="With --h264: also keep the videos, left.mp4 and right.mp4 (calibrate-sequence --video).",
+    ),
+]
+_MakeDataExposureChanges = Annotated[
+    float,
+    typer.Option(
+        metavar="STOPS",
+        help="Sequences: the exposure drifts over time by up to ± this many stops, the right camera's by "
+        "a tenth of that more on its own.",
+    ),
+]
+_MakeDataMotionBlur = Annotated[
+    float,
+    typer.Option(
+        metavar="MS",
+        help="Sequences: motion blur of the rig's and the objects' motion over an exposure of this many "
+        "milliseconds.",
+    ),
+]
+_MakeDataMovingObjects = Annotated[
+    int, typer.Option(metavar="N", help="Sequences: N cars and people that move on their own.")
+]
 _MakeDataProgress = Annotated[
     bool | None,
     typer.Option("--progress/--no-progress", help="Show a progress bar (default: if a terminal)."),
@@ -231,6 +278,13 @@ def make_data(
     preview: _MakeDataPreview = None,
     photos: _MakeDataPhotos = None,
     photo_split: _MakeDataPhotoSplit = "train",
+    principal_offset: _MakeDataPrincipalOffset = None,
+    focal_aspect: _MakeDataFocalAspect = 1.0,
+    h264: _MakeDataH264 = None,
+    keep_video: _MakeDataKeepVideo = False,
+    exposure_changes: _MakeDataExposureChanges = 0.0,
+    motion_blur: _MakeDataMotionBlur = 0.0,
+    moving_objects: _MakeDataMovingObjects = 0,
     progress: _MakeDataProgress = None,
 ) -> None:
     """Render a synthetic stereo dataset with exact ground truth (K, R, T, gravity per camera), or with
@@ -271,7 +325,10 @@ def make_data(
         panoramas=panoramas,
         preview=preview,
         progress=sys.stderr.isatty() if progress is None else progress,
-    )
+        effects={"principal_offset": principal_offset, "focal_aspect": focal_aspect, "h264": h264,
+                 "keep_video": keep_video, "exposure_changes": exposure_changes, "motion_blur": motion_blur,
+                 "moving_objects": moving_objects},
+    )  # fmt: skip
 
 
 def _internal(error: BaseException) -> typer.Exit:
@@ -388,7 +445,8 @@ FormatsOption = Annotated[
     str,
     typer.Option(
         "--format",
-        help="Comma-separated output formats to write: opencv, ros, kalibr, colmap, json.",
+        help="Comma-separated output formats to write: opencv, ros, kalibr, colmap, json, html (report.html, "
+        "the report with its figures).",
     ),
 ]
 JsonOption = Annotated[
@@ -485,7 +543,7 @@ def calibrate(
     right: Annotated[Path, typer.Argument(help="The right image.")],
     *,
     output: _CalibrateOutput = None,
-    formats: FormatsOption = "opencv,ros,kalibr,colmap,json",
+    formats: FormatsOption = "opencv,ros,kalibr,colmap,json,html",
     json_out: JsonOption = False,
     preview: _CalibratePreview = None,
     baseline: BaselineOption = None,
@@ -515,11 +573,19 @@ def calibrate(
         focal_sigma=focal_sigma, pinhole=pinhole, lines=lines, exif=exif, rotate=rotate, model=model,
         threads=threads,
     )  # fmt: skip
-    written = write_calibration(output, result.calibration, names) if output is not None else []
+    report_wanted = output is not None and "html" in names
+    images = (load_image(left), load_image(right)) if preview is not None or report_wanted else None
+    written = []
+    if output is not None:
+        figures = None
+        if report_wanted:
+            from stereogeo_cli.report.inputs import pair_inputs
+
+            figures = pair_inputs(result, *images)
+        written = write_calibration(output, result.calibration, names, figures=figures)
     if preview is not None:
         from stereogeo_cli.io.preview import write_preview
 
-        images = (load_image(left), load_image(right))
         written.append(write_preview(preview, *images, result.calibration))
     if json_out:
         from stereogeo_cli.io.report import report_json
@@ -609,7 +675,7 @@ def batch_calibrate(
     folder: _BatchFolder,
     *,
     output: _BatchOutput,
-    formats: FormatsOption = "opencv,ros,kalibr,colmap,json",
+    formats: FormatsOption = "opencv,ros,kalibr,colmap,json,html",
     baseline: BaselineOption = None,
     pinhole: PinholeFlag = False,
     lines: LinesFlag = True,
@@ -729,7 +795,7 @@ _SequenceFormats = Annotated[
     str,
     typer.Option(
         "--format",
-        help="Comma-separated calibration formats to write: opencv, ros, kalibr, colmap, json "
+        help="Comma-separated calibration formats to write: opencv, ros, kalibr, colmap, json, html "
         "(trajectory.txt and sparse/ are always written).",
     ),
 ]
@@ -776,7 +842,7 @@ def calibrate_sequence(
     every: Annotated[int, typer.Option(help="Keep every Nth frame pair.")] = 1,
     fps: _SequenceFps = None,
     max_frames: Annotated[int | None, typer.Option(help="Use at most this many frame pairs.")] = None,
-    formats: _SequenceFormats = "opencv,ros,kalibr,colmap,json",
+    formats: _SequenceFormats = "opencv,ros,kalibr,colmap,json,html",
     overwrite: _SequenceOverwrite = False,
     json_out: JsonOption = False,
     baseline: _SequenceBaseline = None,

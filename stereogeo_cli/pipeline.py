@@ -129,6 +129,14 @@ class CalibrationResult:
     # per camera, where its focal length came from when not from the fields alone (None: the fields', or
     # held where given)
     focal_sources: tuple[FocalCombination | None, FocalCombination | None] = (None, None)
+    # which of ``matches`` the relative pose was fitted to (a mask [N]; None: the pose is the pose head's)
+    inliers: np.ndarray | None = None
+    # each view's perspective fields as the network read them (left, right); None where the images were
+    # turned before they were read (``turned_back``: the fields are of the turned images)
+    fields: tuple[ViewFields, ViewFields] | None = None
+    # each camera's focal length as its fields alone read it, with the refiner's 1-sigma, in pixels (None:
+    # held where given): the first of the focal length's pieces of evidence the HTML report shows
+    fields_focal: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None)
 
     def report(self) -> dict:
         """The JSON report (docs/io.md), with the pose's provenance and any warnings."""
@@ -172,6 +180,7 @@ class CalibrationResult:
         return replace(
             self, calibration=calibration, left=self.right, right=self.left, pose=mirrored_pose,
             matches=matches, focal_sources=self.focal_sources[::-1],
+            fields=None if self.fields is None else self.fields[::-1], fields_focal=self.fields_focal[::-1],
         )  # fmt: skip
 
     def turned_back(self, turn: ImageTurn) -> CalibrationResult:
@@ -216,7 +225,9 @@ class CalibrationResult:
                 self.matches.features,
             )
         left, right = fit(self.left), fit(self.right)
-        return replace(self, calibration=calibration, left=left, right=right, pose=pose, matches=matches)
+        return replace(
+            self, calibration=calibration, left=left, right=right, pose=pose, matches=matches, fields=None
+        )
 
 
 def with_rotation_noted(calibration: StereoCalibration, degrees: int) -> StereoCalibration:
@@ -338,6 +349,8 @@ class _PairWork:
     matches: Matches | None = None
     pose: RelativePose | None = None
     used: list[int] = field(default_factory=lambda: [0, 0])  # vertical segments in each gravity fit
+    # each camera's focal length and 1-sigma as its fields alone read it (None: held)
+    fields_focal: list = field(default_factory=lambda: [None, None])
 
 
 class _Baseline(NamedTuple):
@@ -937,6 +950,12 @@ class Calibrator:
             work.held[side] = focal
             if focal is None:
                 work.warnings.extend(note for note in (reason, disagreement) if note)
+                prior = work.priors[side]  # the fields' own read, before a prior was combined with it
+                work.fields_focal[side] = (
+                    (fit.focal_px, fit.sigma["focal_px"])
+                    if prior is None
+                    else (prior.fields_focal_px, prior.fields_sigma_px)
+                )
         work.timing["refine"] = (time.perf_counter() - tick) * 1e3
         for name, fit in zip(("left", "right"), work.fits, strict=True):
             if not np.isfinite(fit.sigma["focal_px"]) and work.held == [None, None]:
@@ -1121,6 +1140,15 @@ class Calibrator:
             cameras, pose, baseline.metres, baseline.scale_source, model, work.warnings, more_pose=more_pose,
             more=more, timing_ms=work.timing,
         )  # fmt: skip
+        inliers = None
+        if (
+            pose.source != "pose_head"
+            and pose.start is not None
+            and len(pose.start.mask) == len(work.matches)
+        ):
+            inliers = np.asarray(pose.start.mask, dtype=bool).copy()
         return CalibrationResult(
-            calibration, fits[0], fits[1], pose, work.warnings, work.matches, (priors[0], priors[1])
-        )
+            calibration, fits[0], fits[1], pose, work.warnings, work.matches, (priors[0], priors[1]),
+            inliers=inliers, fields=(work.net.left, work.net.right),
+            fields_focal=(work.fields_focal[0], work.fields_focal[1]),
+        )  # fmt: skip

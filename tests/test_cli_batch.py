@@ -291,8 +291,8 @@ def test_same_rig_writes_one_joint_calibration(small_images, onnx_model, tmp_pat
     )
     assert result.exit_code == 4, result.output
     assert sorted(p.name for p in (out / "rig").iterdir()) == [
-        "camchain.yaml", "cameras.txt", "extrinsics.yml", "intrinsics.yml", "left.yaml", "report.json",
-        "right.yaml",
+        "camchain.yaml", "cameras.txt", "extrinsics.yml", "intrinsics.yml", "left.yaml", "report.html",
+        "report.json", "right.yaml",
     ]  # fmt: skip
     rig = json.loads((out / "rig" / "report.json").read_text())
     assert rig["baseline_m"] == pytest.approx(0.12) and rig["scale_source"] == "baseline"

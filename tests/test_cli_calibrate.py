@@ -272,10 +272,10 @@ def test_output_folder_gets_the_default_formats(pair, onnx_model, tmp_path):
     result = invoke("calibrate", *pair, "--model", onnx_model, "-o", out)
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in out.iterdir()) == [
-        "camchain.yaml", "cameras.txt", "extrinsics.yml", "intrinsics.yml", "left.yaml", "report.json",
-        "right.yaml",
+        "camchain.yaml", "cameras.txt", "extrinsics.yml", "intrinsics.yml", "left.yaml", "report.html",
+        "report.json", "right.yaml",
     ]  # fmt: skip
-    for name in ("intrinsics.yml", "left.yaml", "camchain.yaml", "cameras.txt", "report.json"):
+    for name in ("intrinsics.yml", "left.yaml", "camchain.yaml", "cameras.txt", "report.json", "report.html"):
         assert name in result.output  # the summary lists every file written
     intrinsics = cv2.FileStorage(str(out / "intrinsics.yml"), cv2.FILE_STORAGE_READ)
     extrinsics = cv2.FileStorage(str(out / "extrinsics.yml"), cv2.FILE_STORAGE_READ)

@@ -22,8 +22,8 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples"
-ALL_FILES = ["camchain.yaml", "cameras.txt", "extrinsics.yml", "intrinsics.yml", "left.yaml", "report.json",
-             "right.yaml"]  # fmt: skip
+ALL_FILES = ["camchain.yaml", "cameras.txt", "extrinsics.yml", "intrinsics.yml", "left.yaml", "report.html",
+             "report.json", "right.yaml"]  # fmt: skip
 
 
 def written_files(folder: Path) -> list[str]:
@@ -191,7 +191,7 @@ def check_colmap(folder: Path, report: dict, scratch: Path) -> None:
 
 
 def assert_folder_matches_report(folder: Path, report: dict, scratch: Path) -> None:
-    """Every file of ``folder`` (all five formats) loaded by its reader agrees with ``report`` and with
+    """Every file of ``folder`` (all six formats) loaded by its reader agrees with ``report`` and with
     the report.json beside it."""
     assert written_files(folder) == ALL_FILES
     assert json.loads((folder / "report.json").read_text()) == report

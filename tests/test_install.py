@@ -159,8 +159,8 @@ def _calibrate(run, work: Path) -> None:
     assert abs(report["left"]["vfov_deg"] - 70.6) < 10 and abs(report["right"]["vfov_deg"] - 77.0) < 10
     written = sorted(p.name for p in (work / "calibration").iterdir())
     assert written == [
-        "camchain.yaml", "cameras.txt", "extrinsics.yml", "intrinsics.yml", "left.yaml", "report.json",
-        "right.yaml",
+        "camchain.yaml", "cameras.txt", "extrinsics.yml", "intrinsics.yml", "left.yaml", "report.html",
+        "report.json", "right.yaml",
     ]  # fmt: skip
 
 

@@ -103,6 +103,51 @@ def test_a_render_reads_alike_in_least_squares_and_with_a_robust_loss(turning):
     assert report["pose"]["sigma_rotation_deg"] >= robust["rotation_deg"]
 
 
+def test_a_render_reads_alike_with_its_principal_points_freed_under_a_prior(turning):
+    """A render's principal points lie exactly at the image centre: freeing them under a prior leaves them
+    within a pixel or two of it and moves the adjustment by far less than its sigma; the parting is part of
+    the reported sigmas all the same."""
+    _, truth, _, report = turning
+    reading = report["sequence"]["principal_point_reading"]
+    assert reading["focal_rel"] < 0.005 and reading["rotation_deg"] < 0.05
+    for side in ("left", "right"):
+        width, height = truth[side]["width"], truth[side]["height"]
+        np.testing.assert_allclose(reading["principal_point_px"][side], [width / 2, height / 2], atol=2.0)
+        adjusted = report["sequence"]["evidence"]["focal"][side]["adjustment"]
+        assert adjusted["sigma_px"] >= reading["focal_rel"] * adjusted["focal_px"]
+    assert report["pose"]["sigma_rotation_deg"] >= reading["rotation_deg"]
+
+
+def test_the_principal_point_prior_pulls_as_hard_as_its_sigma_says(turning):
+    """From principal points 10 and 6 px off the centre: an adjustment that holds them keeps them there; one
+    under a prior of a tiny sigma brings them to the image centre; under a prior of a sigma as wide as the
+    image it leaves them where the adjustment that frees them without a prior puts them (the frames fix
+    them to a fraction of a pixel)."""
+    pycolmap = pytest.importorskip("pycolmap")
+    from stereogeo_cli.sequence import colmap
+
+    _, _, out, _ = turning
+
+    def adjusted(free: bool = False, share: float | None = None) -> np.ndarray:
+        model = pycolmap.Reconstruction(out / "sparse" / "0")
+        for camera in model.cameras.values():
+            params = np.array(camera.params)
+            params[list(camera.principal_point_idxs())] += [10.0, -6.0]
+            camera.params = params
+        prior = None if share is None else colmap.CentrePrior(0.3, share)
+        colmap._bundle_adjust(model, False, True, refine_principal_point=free, centre_prior=prior)
+        return np.array([
+            [c.principal_point_x - c.width / 2 - 0.5, c.principal_point_y - c.height / 2 - 0.5]
+            for c in model.cameras.values()
+        ])  # fmt: skip
+
+    np.testing.assert_allclose(adjusted(), [[10.0, -6.0]] * 2, atol=1e-9)
+    np.testing.assert_allclose(adjusted(share=1e-6), 0.0, atol=0.01)
+    free = adjusted(free=True)
+    assert np.all(np.abs(free) < 2.0)
+    np.testing.assert_allclose(adjusted(share=1.0), free, atol=0.01)
+
+
 def test_each_frame_gets_its_roll_and_pitch_in_a_world_with_z_up(turning):
     folder, truth, _, report = turning
     up = np.array(truth["gravity_up_world"])

@@ -60,11 +60,16 @@ def calibrate_pair(
             options = pair_options(
                 report.get("model") or {}, job.baseline_m, job.pinhole, job.lines, job.exif, job.rotate
             )
+            figures = None
+            if "html" in job.formats:  # what the pair's report.html draws
+                from stereogeo_cli.report.inputs import pair_inputs
+
+                figures = pair_inputs(result, left, right)
             try:
                 with protected():  # the pair's files and marker all written, even if a second Ctrl-C comes
                     outcome.time_ms = write_pair_files(
                         job.out_dir / entry.name, result.calibration, job.formats, evidence,
-                        (entry.left, entry.right), options, report, start,
+                        (entry.left, entry.right), options, report, start, figures,
                     )  # fmt: skip
             except Interrupted as stop_now:  # it came meanwhile: the pair is done, and the batch stops
                 outcome.status, outcome.report, outcome.evidence = "ok", report, evidence

@@ -81,9 +81,10 @@ def marker_files(folder: Path) -> set[str]:
 
 
 def write_pair_files(folder: Path, calibration, formats, evidence, inputs: tuple[Path, Path], options: dict,
-                     report: dict, started: float) -> float:  # fmt: skip
+                     report: dict, started: float, figures=None) -> float:  # fmt: skip
     """Write a pair's calibration files (and ``evidence``, a PairEvidence or None), then its marker; return
     the pair's time in ms (from ``started``, a ``time.perf_counter()``) as the marker records it.
+    ``figures``: what its report.html draws (:class:`~stereogeo_cli.report.ReportInputs`).
 
     An earlier marker goes first (a folder half rewritten is never taken as complete), and the files it
     listed that this run does not write again are removed after the new marker is in place.
@@ -98,7 +99,7 @@ def write_pair_files(folder: Path, calibration, formats, evidence, inputs: tuple
         (folder / MARKER).unlink(missing_ok=True)
     except OSError:
         pass  # not a folder, or not writable: write_calibration says so
-    written = write_calibration(folder, calibration, formats)
+    written = write_calibration(folder, calibration, formats, figures=figures)
     if evidence is not None:
         written += write_files_atomically(folder, {EVIDENCE: evidence_bytes(evidence)})
     time_ms = (time.perf_counter() - started) * 1e3

@@ -271,7 +271,15 @@ def _write_results(folder: Path, out_dir: Path, options: BatchOptions, summary: 
 
     rig_entry = None
     if summary.rig is not None:
-        summary.written += write_calibration(out_dir / RIG_FOLDER, summary.rig, options.formats)
+        figures = None
+        if "html" in options.formats:  # the joint report sets each pair's own calibration against it
+            from stereogeo_cli.report.inputs import ReportInputs
+
+            pairs = [(o.name, o.report) for o in summary.outcomes if o.status == "ok" and o.report]
+            figures = ReportInputs(pairs=pairs)
+        summary.written += write_calibration(
+            out_dir / RIG_FOLDER, summary.rig, options.formats, figures=figures
+        )
         rig_entry = {"folder": RIG_FOLDER, "report": json_safe(summary.rig.to_report())}
     elif summary.rig_error is not None:
         rig_entry = {"folder": None, "error": str(summary.rig_error)}

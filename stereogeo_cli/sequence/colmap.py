@@ -57,6 +57,9 @@ default_conf = {
     # ... and kept where freeing them lowers the cost by more than this share: a real camera's principal
     # point 9 px off (EuRoC) explains 12 % of it, a render's exact centre 0.1-0.2 % (model noise)
     "principal_point_min_fall": 0.01,
+    # the principal point's prior where an adjustment frees it under one (centre_reading): a Gaussian at
+    # the image centre, its 1-sigma this share of the longer side (real cameras: within a few per cent)
+    "principal_point_prior": 0.02,
 }
 
 
@@ -114,6 +117,7 @@ class SequenceModel:
     # sigma of the focal lengths (the cameras' sigma is the wider of it and the stretches')
     left_out: object = None
     robust: RobustReading | None = None
+    centre: CentreReading | None = None
     profile_sigma_rel: float = math.inf
 
 
@@ -370,15 +374,60 @@ def map_frames(workspace: Path, database: Path, radial: bool, conf: dict, stop=N
     return sorted(models.values(), key=lambda r: r.num_reg_frames(), reverse=True)
 
 
+@dataclass(frozen=True)
+class CentrePrior:
+    """A Gaussian prior on each camera's principal point: at the image centre, its 1-sigma ``share`` of
+    the image's longer side; ``noise_px`` is the reprojection noise that weighs it against the residuals
+    (the adjustment's cost is then the negative log-posterior times the noise's variance)."""
+
+    noise_px: float
+    share: float
+
+
+def _add_centre_prior(adjuster, reconstruction, prior: CentrePrior) -> list:
+    """Each camera's :class:`CentrePrior` as one residual block of the adjuster's Ceres problem (pyceres,
+    on COLMAP's own parameter block of the camera's intrinsics). Returns the cost functions, which must
+    live as long as the problem is solved."""
+    import pyceres
+
+    class PrincipalPointPrior(pyceres.CostFunction):
+        def __init__(self, size: int, indices, centre, weight: float):
+            super().__init__()
+            self.set_num_residuals(2)
+            self.set_parameter_block_sizes([size])
+            self.indices, self.centre, self.weight = list(indices), np.asarray(centre, float), weight
+
+        def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres' name)
+            params = parameters[0]
+            residuals[:] = self.weight * (params[self.indices] - self.centre)
+            if jacobians is not None and jacobians[0] is not None:
+                jacobian = np.zeros((2, len(params)))
+                jacobian[[0, 1], self.indices] = self.weight
+                jacobians[0][:] = jacobian.ravel()
+            return True
+
+    costs = []
+    for camera in reconstruction.cameras.values():
+        sigma_px = prior.share * max(camera.width, camera.height)
+        centre = (camera.width / 2, camera.height / 2)  # COLMAP's pixels: stereogeo's (w/2, h/2) + 0.5
+        centre = (centre[0] + 0.5, centre[1] + 0.5)
+        cost = PrincipalPointPrior(
+            len(camera.params), camera.principal_point_idxs(), centre, prior.noise_px / sigma_px
+        )
+        adjuster.problem.add_residual_block(cost, None, [camera.params])
+        costs.append(cost)
+    return costs
+
+
 def _bundle_adjust(
     reconstruction, radial: bool, refine_focal: bool, refine_principal_point: bool = False, images=None,
-    robust_scale_px: float | None = None,
+    robust_scale_px: float | None = None, centre_prior: CentrePrior | None = None,
 ) -> tuple[float, int]:  # fmt: skip
     """COLMAP's bundle adjustment of every registered frame (or only the registered ``images``, by id),
     the rig, the points and the intrinsics (the focal lengths only where ``refine_focal``, the principal
-    point only where ``refine_principal_point``), in least squares (or with a Cauchy loss of scale
-    ``robust_scale_px``). Returns its final cost (½ Σ r², r in pixels) and its degrees of freedom
-    (residuals less parameters).
+    point only where ``refine_principal_point`` or under ``centre_prior``), in least squares (or with a
+    Cauchy loss of scale ``robust_scale_px``). Returns its final cost (½ Σ r², r in pixels, a prior's
+    residuals included) and its degrees of freedom (residuals less parameters).
 
     Raises:
         CalibrationFailed: the solver ended without a usable solution (its cost means nothing then).
@@ -386,11 +435,14 @@ def _bundle_adjust(
     pycolmap = _pycolmap()
     options = pycolmap.BundleAdjustmentOptions(
         refine_focal_length=refine_focal,
-        refine_principal_point=refine_principal_point,
+        refine_principal_point=refine_principal_point or centre_prior is not None,
         refine_extra_params=radial,
         refine_sensor_from_rig=True,
         print_summary=False,
     )
+    if centre_prior is not None:  # the prior is evaluated in Python: Ceres must call it from this thread
+        options.ceres.solver_options.num_threads = 1
+        options.ceres.min_num_residuals_for_cpu_multi_threading = 2**31 - 1
     if robust_scale_px is not None:
         options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
         options.ceres.loss_function_scale = float(robust_scale_px)
@@ -398,7 +450,10 @@ def _bundle_adjust(
     for image_id in reconstruction.reg_image_ids() if images is None else images:
         config.add_image(image_id)
     config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
-    summary = pycolmap.create_default_ceres_bundle_adjuster(options, config, reconstruction).solve()
+    adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, reconstruction)
+    priors = [] if centre_prior is None else _add_centre_prior(adjuster, reconstruction, centre_prior)
+    summary = adjuster.solve()
+    del priors  # held until the problem was solved
     if not summary.is_solution_usable():  # e.g. FAILURE (a problem Ceres could not solve, or no residuals)
         solver = getattr(summary, "ceres_summary", None)  # absent where Ceres did not run
         reason = " ".join(str(solver.message).split()) if solver is not None else ""
@@ -534,13 +589,63 @@ def robust_reading(reconstruction, radial: bool, free_centre: bool, stop=None) -
     _bundle_adjust(
         trial, radial, refine_focal=True, refine_principal_point=free_centre, robust_scale_px=scale
     )
-    least, robust = _block_fit(reconstruction), _block_fit(trial)
-    common = 0.5 * sum(math.log(r / q) for r, q in zip(robust.focal_px, least.focal_px, strict=True))
-    cosine = float(robust.T @ least.T / (np.linalg.norm(robust.T) * np.linalg.norm(least.T)))
-    return RobustReading(
-        abs(common), math.degrees(rotation_angle(robust.R @ least.R.T)),
-        math.degrees(math.acos(max(-1.0, min(1.0, cosine)))), scale,
+    return RobustReading(*_parting(_block_fit(reconstruction), _block_fit(trial)), scale)
+
+
+def _parting(fit: BlockFit, other: BlockFit) -> tuple[float, float, float]:
+    """How far ``other`` lies from ``fit``: the focal lengths' common scale (relative), R and T's direction
+    (degrees)."""
+    common = 0.5 * sum(math.log(o / f) for o, f in zip(other.focal_px, fit.focal_px, strict=True))
+    cosine = float(other.T @ fit.T / (np.linalg.norm(other.T) * np.linalg.norm(fit.T)))
+    return (
+        abs(common), math.degrees(rotation_angle(other.R @ fit.R.T)),
+        math.degrees(math.acos(max(-1.0, min(1.0, cosine)))),
     )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class CentreReading:
+    """How far the last adjustment moves when its principal points are freed under a prior at the image
+    centre (:class:`CentrePrior`) instead of held there (or freed without one). A real camera's principal
+    point may lie a few per cent off the centre: where the reading parts from the adjustment, the focal
+    lengths, R and T rest on how the principal points are modelled (on a drive straight ahead they trade
+    with the focal length, and the two cameras' with R), not on the data, and the parting is a sigma of
+    its own. ``principal_points``: the reading's, (left, right) in stereogeo's pixels."""
+
+    focal_rel: float
+    rotation_deg: float
+    direction_deg: float
+    principal_points: tuple[tuple[float, float], tuple[float, float]]
+    prior_share: float  # the prior's 1-sigma, a share of the image's longer side
+
+    def to_report(self) -> dict:
+        return {
+            "focal_rel": self.focal_rel,
+            "rotation_deg": self.rotation_deg,
+            "direction_deg": self.direction_deg,
+            "prior_sigma_rel": self.prior_share,
+            "principal_point_px": {
+                side: list(point)
+                for side, point in zip(("left", "right"), self.principal_points, strict=True)
+            },
+        }
+
+
+def centre_reading(reconstruction, radial: bool, free_centre: bool, conf: dict, stop=None) -> CentreReading:
+    """The last adjustment run again with the principal points freed under a prior at the image centre
+    (:class:`CentreReading`), the prior weighed by the adjustment's own reprojection noise."""
+    pycolmap = _pycolmap()
+    if stop is not None and stop.requested:
+        raise Cancelled()
+    trial = pycolmap.Reconstruction(reconstruction)
+    cost, dof = _bundle_adjust(trial, radial, refine_focal=True, refine_principal_point=free_centre)
+    prior = CentrePrior(math.sqrt(2.0 * cost / max(dof, 1)), conf["principal_point_prior"])
+    _bundle_adjust(trial, radial, refine_focal=True, centre_prior=prior)
+    points = tuple(
+        (trial.cameras[i].principal_point_x - 0.5, trial.cameras[i].principal_point_y - 0.5)
+        for i in _camera_ids(trial)
+    )
+    return CentreReading(*_parting(_block_fit(reconstruction), _block_fit(trial)), points, prior.share)
 
 
 def left_out_blocks(reconstruction, radial: bool, free_centre: bool, sizes: tuple, conf: dict, stop=None):
@@ -753,19 +858,30 @@ def reconstruct(
         free_centre = cameras[0].principal_point_refined
         left_out = left_out_blocks(adjusted, radial, free_centre, sizes, conf, stop)
         robust = robust_reading(adjusted, radial, free_centre, stop)
-        return _with_readings(read_model((cameras, adjusted), len(models)), left_out, robust)
+        centre = centre_reading(adjusted, radial, free_centre, conf, stop)
+        return _with_readings(read_model((cameras, adjusted), len(models)), left_out, robust, centre)
 
 
-def _with_readings(model: SequenceModel, left_out, robust: RobustReading) -> SequenceModel:
+def _with_readings(
+    model: SequenceModel, left_out, robust: RobustReading, centre: CentreReading
+) -> SequenceModel:
     """The model with the other readings of its focal lengths: each one's sigma the widest of the cost
-    profile's, the left-out stretches' jackknife and the robust adjustment's parting (the profile measures
-    how sharply the adjustment's own model ties the focal lengths; the stretches how far the data move
-    them; the robust loss how far the weighing of the residuals does)."""
-    others = [robust.focal_rel] + ([] if left_out is None else [left_out.focal_sigma_rel])
+    profile's, the left-out stretches' jackknife, the robust adjustment's parting and the other principal
+    points' parting (the profile measures how sharply the adjustment's own model ties the focal lengths;
+    the stretches how far the data move them; the robust loss how far the weighing of the residuals does;
+    the principal points how far their model does)."""
+    others = [robust.focal_rel, centre.focal_rel] + ([] if left_out is None else [left_out.focal_sigma_rel])
     cameras = []
     for camera in model.cameras:
         profile = camera.sigma_focal_px / camera.focal_px
         wider = max(profile, *others) if math.isfinite(profile) else profile
         cameras.append(replace(camera, sigma_focal_px=camera.focal_px * wider))
     profile = model.cameras[0].sigma_focal_px / model.cameras[0].focal_px
-    return replace(model, cameras=tuple(cameras), left_out=left_out, robust=robust, profile_sigma_rel=profile)
+    return replace(
+        model,
+        cameras=tuple(cameras),
+        left_out=left_out,
+        robust=robust,
+        centre=centre,
+        profile_sigma_rel=profile,
+    )

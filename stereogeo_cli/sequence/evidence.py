@@ -143,14 +143,19 @@ def combine_adjusted_focal(
 
 
 def rig_sigmas_deg(
-    spread: tuple[float, float], cameras, sizes: tuple, conf: dict | None = None
+    spread: tuple[float, float], cameras, sizes: tuple, conf: dict | None = None, held_measured: bool = False
 ) -> tuple[float, float]:
     """R's and T's direction's reported 1-sigma (degrees): the frames' own spread (``spread``, from
-    :func:`~stereogeo_cli.sequence.colmap.rig_sigmas`) with what the principal points' uncertainty adds
-    (σ_pp / f for the less certain camera) in quadrature. ``sizes``: ((h, w) left, right)."""
+    :func:`~stereogeo_cli.sequence.colmap.rig_sigmas` and the adjustment's other readings) with what the
+    principal points' uncertainty adds (σ_pp / f for the less certain camera) in quadrature.
+    ``held_measured``: an adjustment that freed the principal points under a prior measured how far R and
+    T move with them (it is in ``spread``): no bound is added for the cameras whose points were held.
+    ``sizes``: ((h, w) left, right)."""
     conf = resolve(default_conf, conf)
     floor = 0.0
     for camera, (height, width) in zip(cameras, sizes, strict=True):
+        if held_measured and not camera.principal_point_refined:
+            continue
         share = conf[
             "principal_point_sigma_rel_free"
             if camera.principal_point_refined

@@ -230,7 +230,8 @@ def calibrate_frames(
     if progress is not None:
         progress(0, None, "combining the frames' evidence")
     # the frames' own spread, in the reconstruction's own world (before it is aligned)
-    rig_sigmas = rig_sigmas_deg(_rig_spread(model), model.cameras, sizes, conf["evidence"])
+    measured = model.centre is not None
+    rig_sigmas = rig_sigmas_deg(_rig_spread(model), model.cameras, sizes, conf["evidence"], measured)
     by_index = {f"{f.index:06d}.png": f for f in frames}
     registered = {int(name[:6]): pose for name, pose in model.cam_from_world.items()}
     up, up_sigma_deg, used = world_up(readings, registered, model.R, conf["evidence"])
@@ -280,13 +281,16 @@ def calibrate_frames(
 
 def _rig_spread(model) -> tuple[float, float]:
     """R's and T's direction's 1-sigma from the frames (degrees): the widest of the right camera's poses
-    located alone (:func:`colmap.rig_sigmas`), the left-out stretches' jackknife and the robust
-    adjustment's parting (:class:`colmap.RobustReading`)."""
+    located alone (:func:`colmap.rig_sigmas`), the left-out stretches' jackknife, the robust
+    adjustment's parting (:class:`colmap.RobustReading`) and the other principal points' parting
+    (:class:`colmap.CentreReading`: where they trade with R, R's sigma says so)."""
     readings = [colmap.rig_sigmas(model)]
     if model.left_out is not None:
         readings.append((model.left_out.rotation_sigma_deg, model.left_out.direction_sigma_deg))
     if model.robust is not None:
         readings.append((model.robust.rotation_deg, model.robust.direction_deg))
+    if model.centre is not None:
+        readings.append((model.centre.rotation_deg, model.centre.direction_deg))
     return max(r[0] for r in readings), max(r[1] for r in readings)
 
 
@@ -400,6 +404,8 @@ def _sequence_block(frames, model, focals, attitudes, up, span, scale) -> dict:
         "left_out": None if model.left_out is None else model.left_out.to_report(),
         # the last adjustment with a robust loss: how far it parts from the least-squares one
         "robust": None if model.robust is None else model.robust.to_report(),
+        # the last adjustment with the principal points treated the other way: how far it parts
+        "principal_point_reading": None if model.centre is None else model.centre.to_report(),
         "adjustment_profile_sigma_rel": finite(model.profile_sigma_rel),
         "evidence": {
             "focal": {side: f.to_report() for side, f in zip(("left", "right"), focals, strict=True)},
@@ -541,9 +547,12 @@ def write_sequence(out_dir: str | Path, result: SequenceResult, formats=None, *,
     from stereogeo_cli.io.atomic import replace_folder_atomically
     from stereogeo_cli.io.writers import DEFAULT_FORMATS, render_calibration
     from stereogeo_cli.jobs.interrupt import protected
+    from stereogeo_cli.sequence.report_inputs import sequence_inputs
 
     check_output_folder(out_dir, overwrite)
-    files: dict[str, str | bytes] = dict(render_calibration(result.calibration, formats or DEFAULT_FORMATS))
+    formats = formats or DEFAULT_FORMATS
+    figures = sequence_inputs(result) if "html" in formats else None
+    files: dict[str, str | bytes] = dict(render_calibration(result.calibration, formats, figures=figures))
     if result.reconstruction is not None:  # COLMAP made a model (else the pairs alone calibrated the rig)
         files["trajectory.txt"] = trajectory_tum(result.trajectory)
         files.update(colmap.model_files(result.reconstruction))

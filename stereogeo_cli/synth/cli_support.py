@@ -99,6 +99,41 @@ SEQUENCE_DEFAULTS = {
     "max_angle": 5.0,
     "augment": 0.5,
 }
+# --sequence drive: a car's rig (sequence.DRIVE_CONFIG): 1240 × 376, vFoV 27–33°, baseline 0.45–0.6 m
+DRIVE_DEFAULTS = {
+    **SEQUENCE_DEFAULTS,
+    "size": 376,
+    "aspects": "1240:376",
+    "vfov": (27.0, 33.0),
+    "baseline": (0.45, 0.6),
+    "max_angle": 2.0,
+}
+# the options of the effects of real recordings (sequences only) and their "off" values
+EFFECT_OPTIONS = {
+    "principal_offset": ("--principal-offset", None),
+    "focal_aspect": ("--focal-aspect", 1.0),
+    "h264": ("--h264", None),
+    "keep_video": ("--keep-video", False),
+    "exposure_changes": ("--exposure-changes", 0.0),
+    "motion_blur": ("--motion-blur", 0.0),
+    "moving_objects": ("--moving-objects", 0),
+}
+
+
+def build_effects(effects: dict):
+    """The SequenceEffects of the command line's effect options (EFFECT_OPTIONS; missing ones off)."""
+    from stereogeo_cli.synth.effects import SequenceEffects, parse_principal_offset
+
+    given = {key: effects.get(key, off) for key, (_, off) in EFFECT_OPTIONS.items()}
+    return SequenceEffects(
+        principal_offset=parse_principal_offset(given["principal_offset"]),
+        focal_aspect=float(given["focal_aspect"]),
+        h264_kbps=None if given["h264"] is None else float(given["h264"]),
+        keep_video=bool(given["keep_video"]),
+        exposure_stops=float(given["exposure_changes"]),
+        motion_blur_ms=float(given["motion_blur"]),
+        moving_objects=int(given["moving_objects"]),
+    )
 
 
 def _resolve(options: dict, defaults: dict) -> dict:
@@ -123,17 +158,24 @@ def run_make_data(
     preview: Path | None,
     progress: bool,
     sequence: str | None = None,
+    effects: dict | None = None,
     **options,
 ) -> None:
     """Write the dataset and/or the contact sheet, or one sequence; a one-line summary goes to stderr.
 
-    Options left None take the defaults of the mode (PAIR_DEFAULTS or SEQUENCE_DEFAULTS).
+    Options left None take the defaults of the mode (PAIR_DEFAULTS, SEQUENCE_DEFAULTS or, for a drive,
+    DRIVE_DEFAULTS). ``effects``: the effect options of a sequence (EFFECT_OPTIONS), refused for pairs.
     """
     if sequence is not None:
         _run_sequence(
-            out, count=count, seed=seed, preview=preview, progress=progress, motion=sequence, **options
-        )
+            out, count=count, seed=seed, preview=preview, progress=progress, motion=sequence,
+            effects=effects or {}, **options,
+        )  # fmt: skip
         return
+    for key, value in (effects or {}).items():
+        name, off = EFFECT_OPTIONS[key]
+        if value != off:
+            raise StereoGeoError(f"{name} is an effect of sequences: it goes with --sequence MOTION")
     resolved = _resolve({"count": count, **options}, PAIR_DEFAULTS)
     count = resolved.pop("count")
     if out is None and preview is None:
@@ -164,10 +206,12 @@ def _run_sequence(
     preview: Path | None,
     progress: bool,
     motion: str,
+    effects: dict,
     **options,
 ) -> None:
     """``make-data OUT --sequence MOTION``: one sequence of ``count`` frame pairs in OUT (docs/synth.md,
-    "Sequences"). Images are always landscape and never panorama crops."""
+    "Sequences"), with the effects of real recordings that ``effects`` switches on. Images are always
+    landscape and never panorama crops."""
     from stereogeo_cli.synth.sequence import MOTIONS, make_sequence
 
     if motion not in MOTIONS:
@@ -176,12 +220,16 @@ def _run_sequence(
         raise StereoGeoError("--sequence needs an output folder")
     if preview is not None:
         raise StereoGeoError("--preview shows independent pairs; it does not go with --sequence")
-    resolved = _resolve({"count": count, **options}, SEQUENCE_DEFAULTS)
+    resolved = _resolve(
+        {"count": count, **options}, DRIVE_DEFAULTS if motion == "drive" else SEQUENCE_DEFAULTS
+    )
     count = resolved.pop("count")
     if count < 1:
         raise StereoGeoError("--count: a sequence needs at least one frame")
     config = build_config(**resolved).replace(portrait_share=0.0, panorama_share=0.0)
-    summary = make_sequence(Path(out), motion, count, seed, config, progress=progress)
+    summary = make_sequence(
+        Path(out), motion, count, seed, config, progress=progress, effects=build_effects(effects)
+    )
     print(
         f"wrote a {summary.motion} sequence of {plural(summary.frames, 'frame pair')} ({summary.scene} "
         f"scene) to {summary.folder}",

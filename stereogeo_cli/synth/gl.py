@@ -2,8 +2,9 @@
 
 One context per process, created lazily and reused (:func:`get_context`). The projection follows the
 project's camera convention exactly: OpenCV axes (x right, y down, z forward), principal point at
-(w/2, h/2), pixel (0, 0) the centre of the top-left pixel. Frames are rendered "upside down" in GL's
-window coordinates so that GL row 0 is image row 0 and no flip is needed when reading back.
+(w/2, h/2) unless a camera says otherwise, pixel (0, 0) the centre of the top-left pixel. Frames are
+rendered "upside down" in GL's window coordinates so that GL row 0 is image row 0 and no flip is needed
+when reading back.
 
 Where Mesa is absent and a GPU driver provides EGL (a GPU training machine), the context is the driver's:
 the same scenes and cameras, not the same bytes.
@@ -66,18 +67,33 @@ def get_context():
     return ctx
 
 
-def projection_matrix(focal: float, width: int, height: int, near: float, far: float) -> np.ndarray:
-    """OpenCV camera coordinates → GL clip coordinates [4 x 4], with the principal point at (w/2, h/2).
+def projection_matrix(
+    focal: float,
+    width: int,
+    height: int,
+    near: float,
+    far: float,
+    fy: float | None = None,
+    principal: tuple[float, float] | None = None,
+) -> np.ndarray:
+    """OpenCV camera coordinates → GL clip coordinates [4 x 4], with fx = ``focal``, fy = ``fy`` (default
+    ``focal``) and the principal point ``principal`` (cx, cy) (default (w/2, h/2)).
 
-    A point (X, Y, Z) lands on GL window coordinate (f·X/Z + w/2 + 0.5, f·Y/Z + h/2 + 0.5), i.e. on the
-    OpenCV pixel (f·X/Z + w/2, f·Y/Z + h/2) with GL row 0 holding image row 0.
+    A point (X, Y, Z) lands on GL window coordinate (fx·X/Z + cx + 0.5, fy·Y/Z + cy + 0.5), i.e. on the
+    OpenCV pixel (fx·X/Z + cx, fy·Y/Z + cy) with GL row 0 holding image row 0. (NDC x = 2·(u + 0.5)/w − 1,
+    so the third column holds (2·cx + 1)/w − 1, written as 1/w + (2·cx − w)/w: exactly 1/w at the centre.)
     """
     a = (far + near) / (far - near)
     b = -2.0 * far * near / (far - near)
+    fy = focal if fy is None else fy
+    shift_x, shift_y = 1.0 / width, 1.0 / height
+    if principal is not None:
+        shift_x += (2.0 * principal[0] - width) / width
+        shift_y += (2.0 * principal[1] - height) / height
     return np.array(
         [
-            [2.0 * focal / width, 0.0, 1.0 / width, 0.0],
-            [0.0, 2.0 * focal / height, 1.0 / height, 0.0],
+            [2.0 * focal / width, 0.0, shift_x, 0.0],
+            [0.0, 2.0 * fy / height, shift_y, 0.0],
             [0.0, 0.0, a, b],
             [0.0, 0.0, 1.0, 0.0],
         ]

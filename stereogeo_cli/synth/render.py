@@ -119,7 +119,7 @@ void main() { gl_Position = vec4(in_vert, 1.0, 1.0); }
 _SKY_FS = (
     """
 #version 330
-uniform mat3 R_cw; uniform vec3 intrinsics;  // (f, cx, cy)
+uniform mat3 R_cw; uniform vec4 intrinsics;  // (fx, fy, cx, cy)
 out vec4 color;
 """
     + _SKY_LOOKUP
@@ -127,7 +127,7 @@ out vec4 color;
 void main() {
     // GL row 0 is image row 0, and OpenCV pixel centres sit at integer coordinates
     vec2 p = gl_FragCoord.xy - 0.5;
-    vec3 ray = vec3((p.x - intrinsics.y) / intrinsics.x, (p.y - intrinsics.z) / intrinsics.x, 1.0);
+    vec3 ray = vec3((p.x - intrinsics.z) / intrinsics.x, (p.y - intrinsics.w) / intrinsics.y, 1.0);
     color = vec4(sky_color(R_cw * ray), 1.0);
 }
 """
@@ -287,7 +287,7 @@ class Renderer:
         msaa, resolved, _ = self._target(w, h)
         near, far = (scene.near, scene.far) if scene is not None else (0.05, 10.0)
         view = view_matrix(camera.R_wc, camera.center)
-        mvp = projection_matrix(camera.focal, w, h, near, far) @ view
+        mvp = projection_matrix(camera.focal, w, h, near, far, camera.fy, camera.principal) @ view
         sky = self._sky_texture(sky_index)
         sky.use(1)
         self.texture.use(0)
@@ -316,7 +316,7 @@ class Renderer:
                 self.window["sky_yaw"] = sky_yaw
                 vao.render(moderngl.TRIANGLES)
         self.sky["R_cw"].write(np.ascontiguousarray(camera.R_wc, dtype="f4").tobytes())  # transpose = R_cw
-        self.sky["intrinsics"] = (camera.focal, w / 2.0, h / 2.0)
+        self.sky["intrinsics"] = (camera.focal, camera.fy, *camera.cx_cy)
         self.sky["sky_yaw"] = sky_yaw
         self.sky_vao.render(moderngl.TRIANGLES)
         ctx.copy_framebuffer(resolved, msaa)
@@ -331,7 +331,8 @@ class Renderer:
         w, h = camera.width, camera.height
         _, _, target = self._target(w, h)
         view = view_matrix(camera.R_wc, camera.center)
-        mvp = projection_matrix(camera.focal, w, h, scene.near, scene.far) @ view
+        fy, principal = camera.fy, camera.principal
+        mvp = projection_matrix(camera.focal, w, h, scene.near, scene.far, fy, principal) @ view
         target.use()
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.depth_func = "<"

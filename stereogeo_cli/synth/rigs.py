@@ -1,7 +1,9 @@
 """Stereo rigs: cameras in a world frame (x east, y north, z up; metres) and the sampler of rigs.
 
-A camera is (width, height, focal, R_wc, center): ``X_cam = R_wc @ (X_world - center)`` in OpenCV axes.
-The rig convention is the project's: ``X_right = R @ X_left + T``.
+A camera is (width, height, focal, R_wc, center): ``X_cam = R_wc @ (X_world - center)`` in OpenCV axes;
+by default fx = fy = focal and the principal point is (w/2, h/2), and a sequence may set ``aspect`` (fy / fx)
+and ``principal`` (cx, cy) to render a camera whose K is not that ideal one. The rig convention is the
+project's: ``X_right = R @ X_left + T``.
 """
 
 from __future__ import annotations
@@ -23,13 +25,26 @@ class Camera:
 
     width: int
     height: int
-    focal: float  # pixels, fx = fy
+    focal: float  # pixels, fx (= fy unless ``aspect`` says otherwise)
     R_wc: np.ndarray  # [3 x 3] world → camera (OpenCV axes)
     center: np.ndarray  # [3] camera centre in world coordinates, metres
+    aspect: float = 1.0  # fy / fx
+    principal: tuple[float, float] | None = None  # (cx, cy) in pixels; None: (w/2, h/2)
+
+    @property
+    def fy(self) -> float:
+        return self.focal * self.aspect if self.aspect != 1.0 else self.focal
+
+    @property
+    def cx_cy(self) -> tuple[float, float]:
+        return self.principal if self.principal is not None else (self.width / 2.0, self.height / 2.0)
 
     @property
     def K(self) -> np.ndarray:
-        return intrinsic_matrix(self.focal, self.width, self.height)
+        if self.aspect == 1.0 and self.principal is None:
+            return intrinsic_matrix(self.focal, self.width, self.height)
+        cx, cy = self.cx_cy
+        return np.array([[self.focal, 0.0, cx], [0.0, self.fy, cy], [0.0, 0.0, 1.0]])
 
     @property
     def gravity_up(self) -> np.ndarray:
@@ -41,7 +56,7 @@ class Camera:
         Xc = (np.asarray(X_world, dtype=float) - self.center) @ self.R_wc.T
         z = Xc[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
-            xy = self.focal * Xc[:, :2] / z[:, None] + np.array([self.width / 2.0, self.height / 2.0])
+            xy = np.array([self.focal, self.fy]) * Xc[:, :2] / z[:, None] + np.array(self.cx_cy)
         return xy, z
 
     def to_calib(self) -> dict:

@@ -202,6 +202,10 @@ class Scene:
     near: float
     far: float
     rig: Rig
+    # where traffic may move (streets and roads): {"lanes": [(path [P x 2] world xy in the direction of
+    # travel, z0)], "walks": [(path, z0)]}; None elsewhere (traffic.py then draws free straight paths)
+    traffic: dict | None = None
+    movers: tuple = ()  # traffic.Mover: objects that move on their own between frames (sequences only)
 
 
 def _box_distance(point: np.ndarray, center_xy, size, z0: float, yaw: float) -> float:
@@ -631,7 +635,13 @@ def build_street(rng, rig_sample: RigSample, materials: MaterialIndex, objects: 
     if objects:
         _street_objects(rng, placer, materials, road, pavement, kerb)
     surfaces, windows = mesh.arrays()
-    return Scene("street", surfaces, windows, _lighting_outdoor(rng), float(rng.random()), 0.05, 8000.0, rig)
+    along = np.array([[-300.0, 0.0], [300.0, 0.0]])
+    traffic = {
+        "lanes": [(along + [0.0, -road / 4], 0.0), (along[::-1] + [0.0, road / 4], 0.0)],
+        "walks": [(along + [0.0, side * (road / 2 + pavement / 2)], kerb) for side in (-1, 1)],
+    }
+    lighting, sky_yaw = _lighting_outdoor(rng), float(rng.random())
+    return Scene("street", surfaces, windows, lighting, sky_yaw, 0.05, 8000.0, rig, traffic=traffic)
 
 
 def _car(rng, placer: _Placer, materials, xy, yaw, z0=0.0) -> None:

@@ -1,25 +1,30 @@
 """Rendered stereo sequences: one rig moving through one scene, with exact ground truth for every frame.
 
 A sequence is ``frames`` pairs of one rig (fixed intrinsics, fixed left → right pose) driving straight,
-turning along an arc, swept by hand, or standing still in a scene of :mod:`stereogeo_cli.synth.scenes`.
+turning along an arc, swept by hand, standing still in a scene of :mod:`stereogeo_cli.synth.scenes`, or
+driving along a road like a car (``drive``, :mod:`stereogeo_cli.synth.traffic`). Effects of real recordings
+(an off-centre principal point, fx ≠ fy, H.264, exposure changes, motion blur, moving cars and people) are
+each off unless asked for (:mod:`stereogeo_cli.synth.effects`).
 The folder it writes has the layout of the real sequences (``left/``, ``right/``, ``calib.json``), and
 :func:`read_sequence_ground_truth` reads both (docs/synth.md, "Sequences").
 
 Conventions (the project's): the camera frame is OpenCV's (x right, y down, z forward); pixel (0, 0) is
-the centre of the top-left pixel and the principal point is exactly (w/2, h/2); ``x_right = R · x_left +
-T`` in metres; ``gt_poses`` are the left camera's camera-to-world 4 × 4 matrices in the scene's world
-frame (x east, y north, z up, metres), so the world's up is (0, 0, 1).
+the centre of the top-left pixel and the principal point is exactly (w/2, h/2) unless an effect moves it;
+``x_right = R · x_left + T`` in metres; ``gt_poses`` are the left camera's camera-to-world 4 × 4 matrices
+in the scene's world frame (x east, y north, z up, metres), so the world's up is (0, 0, 1).
 
 The motion is defined over the whole sequence: ``frames`` only sets how densely it is sampled (a
-5-frame sequence turns as far as a 50-frame one). The rig depends only on the seed, so the four motions
-of one seed share image size, focal lengths, baseline and R (a desk scene redraws a shorter baseline).
+5-frame sequence turns as far as a 50-frame one), except for ``drive``, which is recorded at 10 Hz like a
+car's rig and so lasts (frames − 1) / 10 s. The rig depends only on the seed and the config, so the four
+motions of one seed share image size, focal lengths, baseline and R (a desk scene redraws a shorter
+baseline; a drive, with its own config, has a car's rig).
 """
 
 from __future__ import annotations
 
 import json
 import re
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -33,27 +38,48 @@ from stereogeo_cli.geometry import (
 )
 from stereogeo_cli.io.text import plural
 from stereogeo_cli.synth.config import SynthConfig
+from stereogeo_cli.synth.effects import (
+    SequenceEffects,
+    apply_gain,
+    exposure_gains,
+    mean_image,
+    subframe_times,
+    with_intrinsics,
+)
 from stereogeo_cli.synth.rigs import WORLD_UP, Camera, Rig, RigSample, sample_image_size, sample_relative_pose
 
-MOTIONS = ("straight", "turning", "handheld", "static")
+MOTIONS = ("straight", "turning", "handheld", "static", "drive")
 # scene kinds per motion: (indoor, outdoor); handheld indoor becomes "desk" for config.close_share
 MOTION_SCENES = {
     "straight": ("corridor", "street"),
     "turning": ("room", "open"),
     "handheld": ("room", "street"),
     "static": ("room", "street"),
+    "drive": ("road", "road"),
 }
 DURATION_S = {"straight": 5.0, "turning": 6.0, "handheld": 5.0, "static": 5.0}  # time the motion spans
+DRIVE_RATE_HZ = 10.0  # a drive is recorded at this rate (its duration follows from the frames)
+# a drive's rig: a car's wide stereo images (1240 × 376, as KITTI's: at half that size calibrate-sequence
+# mapped a rendered drive from too few points to read its focal length), vFoV 27–33°, a horizontal baseline
+# of 0.45–0.6 m, mounted within ±2° of level
+DRIVE_CONFIG = {
+    "short_side": 376,
+    "aspects": (1240 / 376,),
+    "vfov_deg": (27.0, 33.0),
+    "baseline_m": (0.45, 0.6),
+    "max_angle_deg": 2.0,
+}
 RIG_ROTATION_DEG = (0.5, 2.0)  # angle of the left → right rotation, degrees
 PATH_CLEARANCE_M = 0.25  # every camera centre on the path keeps this far from every surface (desk: half)
 ATTEMPTS = 60  # scene placements tried before giving up
 GENERATOR = "stereogeo make-data --sequence"
 
 
-def sequence_config(**changes) -> SynthConfig:
+def sequence_config(motion: str | None = None, **changes) -> SynthConfig:
     """The sampler settings a sequence uses by default: 640 × 480 (4:3, landscape), vFoV 45–80°, baseline
     0.1–0.5 m, rig roll and pitch within ±5°, photometric changes at half strength (the images keep
-    their contrast for feature matching); ``changes`` override them."""
+    their contrast for feature matching); for ``motion`` "drive" a car's rig (DRIVE_CONFIG); ``changes``
+    override them."""
     base = SynthConfig(
         short_side=480,
         aspects=(4 / 3,),
@@ -64,7 +90,17 @@ def sequence_config(**changes) -> SynthConfig:
         panorama_share=0.0,
         augment=0.5,
     )
+    if motion == "drive":
+        base = base.replace(**DRIVE_CONFIG)
     return base.replace(**changes)
+
+
+def motion_duration(motion: str, frames: int) -> float:
+    """Seconds the motion spans: fixed per motion, or for a drive (frames − 1) frames at DRIVE_RATE_HZ
+    (one frame: a tenth of a second)."""
+    if motion == "drive":
+        return max(frames - 1, 1) / DRIVE_RATE_HZ
+    return DURATION_S[motion]
 
 
 # --- the rig ----------------------------------------------------------------------------------------------
@@ -87,6 +123,14 @@ def sample_sequence_rig(seed: int, cfg: SynthConfig) -> RigSample:
     lo, hi = np.radians(RIG_ROTATION_DEG)
     R = rotation_from_axis_angle(rotvec * np.clip(angle, lo, hi) / max(angle, 1e-12))
     return RigSample(width, height, vfov_left, vfov_right, roll, pitch, R, offset)
+
+
+def rectified(sample: RigSample) -> RigSample:
+    """The rig as a car's stereo camera delivers its images, rectified: both cameras one vFoV, no rotation
+    between them (R = I) and the baseline along the left camera's x axis. The images of such a rig alone
+    do not fix the focal length (only motion does), as on a real drive."""
+    baseline = float(np.linalg.norm(sample.offset))
+    return replace(sample, vfov_right=sample.vfov_left, R=np.eye(3), offset=np.array([baseline, 0.0, 0.0]))
 
 
 def _rig_sample_of(rig: Rig, template: RigSample) -> tuple[RigSample, float]:
@@ -140,7 +184,37 @@ class Motion:
             t = u * DURATION_S["handheld"]
             dofs = [_smooth(t, p[name]) for name in ("x", "y", "z", "yaw", "roll", "pitch")]
             return np.stack(dofs[:3], 1), dofs[3], dofs[4], dofs[5]
+        if self.kind == "drive":
+            return _drive_at(p, u)
         return np.zeros((len(u), 3)), zero, zero, zero
+
+
+def _drive_heading(p: dict, s: np.ndarray) -> np.ndarray:
+    """A drive's heading (radians, > 0 left) after ``s`` metres: straight, then the curve (a smoothstep of
+    ``turn_rad`` over its stretch of the drive), then straight again."""
+    start, length = p["curve_start"] * p["length_m"], p["curve_length"] * p["length_m"]
+    x = np.clip((s - start) / max(length, 1e-9), 0.0, 1.0)
+    return p["turn_rad"] * x * x * (3.0 - 2.0 * x)
+
+
+def _drive_at(p: dict, u: np.ndarray):
+    """:meth:`Motion.at` of a drive: constant speed along the road, its heading integrated into the path
+    (on a 5 cm grid, times outside the drive included, for motion blur), and the suspension's heave, pitch
+    and roll as sinusoids."""
+    t = u * p["duration_s"]
+    s = p["speed_mps"] * t
+    lo, hi = min(0.0, float(s.min())) - 1.0, max(p["length_m"], float(s.max())) + 1.0
+    grid = np.linspace(lo, hi, int(np.ceil((hi - lo) / 0.05)) + 1)
+    heading = _drive_heading(p, grid)
+    step = np.diff(grid)
+    x = np.concatenate([[0.0], np.cumsum(-(np.sin(heading[1:]) + np.sin(heading[:-1])) / 2 * step)])
+    y = np.concatenate([[0.0], np.cumsum((np.cos(heading[1:]) + np.cos(heading[:-1])) / 2 * step)])
+    x, y = np.interp(s, grid, x) - np.interp(0.0, grid, x), np.interp(s, grid, y) - np.interp(0.0, grid, y)
+
+    def wave(name: str) -> np.ndarray:
+        return p[f"{name}_amplitude"] * np.sin(2 * np.pi * p[f"{name}_hz"] * t + p[f"{name}_phase"])
+
+    return np.stack([x, y, wave("heave")], 1), _drive_heading(p, s), wave("roll"), wave("pitch")
 
 
 def _smooth(t: np.ndarray, spec: dict) -> np.ndarray:
@@ -165,8 +239,33 @@ def _handheld_dof(rng: np.random.Generator, amplitude: float) -> dict:
     return {**spec, "amplitude": float(amplitude), "peak": float(np.max(np.abs(_smooth(grid, spec))))}
 
 
-def sample_motion(rng: np.random.Generator, kind: str, outdoor: bool) -> Motion:
-    """The motion's parameters (metres, radians; see :class:`Motion`)."""
+def _drive_params(rng: np.random.Generator, duration: float) -> dict:
+    """A drive: 8–12 m/s, a curve of 6–12° to the left or right over 30–50 % of the drive, and the
+    suspension's heave (0.5–1.5 cm at 1–2 Hz), pitch (0.15–0.4° at 0.8–1.6 Hz) and roll (0.1–0.3° at
+    0.5–1.2 Hz)."""
+    speed = float(rng.uniform(8.0, 12.0))
+    params = {
+        "duration_s": float(duration),
+        "speed_mps": speed,
+        "length_m": speed * float(duration),
+        "turn_rad": float(np.radians(rng.uniform(6.0, 12.0)) * rng.choice([-1.0, 1.0])),
+        "curve_start": float(rng.uniform(0.1, 0.5)),
+        "curve_length": float(rng.uniform(0.3, 0.5)),
+    }
+    for name, amplitude, hz in (("heave", (0.005, 0.015), (1.0, 2.0)),
+                                ("pitch", np.radians([0.15, 0.4]), (0.8, 1.6)),
+                                ("roll", np.radians([0.1, 0.3]), (0.5, 1.2))):  # fmt: skip
+        params[f"{name}_amplitude"] = float(rng.uniform(*amplitude))
+        params[f"{name}_hz"] = float(rng.uniform(*hz))
+        params[f"{name}_phase"] = float(rng.uniform(0, 2 * np.pi))
+    return params
+
+
+def sample_motion(
+    rng: np.random.Generator, kind: str, outdoor: bool, duration: float | None = None
+) -> Motion:
+    """The motion's parameters (metres, radians; see :class:`Motion`); ``duration`` (seconds) for a drive,
+    default one of 50 frames."""
     if kind == "straight":
         return Motion(
             kind,
@@ -203,6 +302,10 @@ def sample_motion(rng: np.random.Generator, kind: str, outdoor: bool) -> Motion:
         return Motion(kind, {name: _handheld_dof(rng, a) for name, a in amplitudes.items()})
     if kind == "static":
         return Motion(kind, {})
+    if kind == "drive":
+        return Motion(
+            kind, _drive_params(rng, motion_duration("drive", 50) if duration is None else duration)
+        )
     raise StereoGeoError(f"unknown sequence motion {kind!r}; choose from {', '.join(MOTIONS)}")
 
 
@@ -281,11 +384,16 @@ def free_extent(motion: Motion, rig_sample: RigSample, anchor: Rig, triangles: n
     """How much of the motion's path (a fraction in [0, 1]) both cameras travel at least ``clearance``
     metres from every surface. The path is sampled at 401 points less than 2·clearance apart, so it cannot
     pass through a surface between two samples unnoticed (the crossing would be nearer than clearance to
-    one of them)."""
+    one of them). A long drive is sampled more densely, as finely as that needs."""
     u = np.linspace(0.0, 1.0, 401)
     rigs = frame_rigs(motion, rig_sample, anchor, u)
     centers = np.array([[r.left.center, r.right.center] for r in rigs])  # [N x 2 x 3]
     step = np.linalg.norm(np.diff(centers, axis=0), axis=-1).max() if len(u) > 1 else 0.0
+    if step > clearance:
+        u = np.linspace(0.0, 1.0, int(np.ceil(400 * step / clearance)) + 1)
+        rigs = frame_rigs(motion, rig_sample, anchor, u)
+        centers = np.array([[r.left.center, r.right.center] for r in rigs])
+        step = np.linalg.norm(np.diff(centers, axis=0), axis=-1).max()
     if step > 2 * clearance:  # pragma: no cover - the motions move far less per sample
         raise StereoGeoError("internal: the path sampling is too coarse for its clearance check")
     distance = distance_to_triangles(centers.reshape(-1, 3), triangles, 2 * clearance)
@@ -301,7 +409,7 @@ class SequencePlan:
     """Everything a sequence's frames are rendered from: the scene, the rig per frame, the calib.json."""
 
     motion: Motion
-    scene: object  # scenes.Scene
+    scene: object  # scenes.Scene (its movers included)
     rigs: list[Rig]
     timestamps: np.ndarray  # [N] seconds
     sky_index: int
@@ -311,6 +419,16 @@ class SequencePlan:
     config: SynthConfig
     renderer: object  # render.Renderer
     vaos: list
+    rig_sample: RigSample | None = None  # the rig's template (to place it at times between frames)
+    effects: SequenceEffects = field(default_factory=SequenceEffects)
+    duration: float = 5.0  # seconds the motion spans
+    gains: np.ndarray | None = None  # [N x 2] per-frame exposure gains (left, right), or None
+
+    def rigs_at(self, times: np.ndarray) -> list[Rig]:
+        """The rig at any times [N] (seconds; between frames or a little outside the sequence)."""
+        u = np.asarray(times, dtype=float) / self.duration
+        rigs = frame_rigs(self.motion, self.rig_sample, self.scene.rig, u)
+        return [with_intrinsics(r, self.effects, self.seed) for r in rigs]
 
     def release(self) -> None:
         self.renderer.release(self.vaos)
@@ -347,36 +465,26 @@ def _views_are_usable(renderer, scene, vaos, rigs: list[Rig], sky_index: int, sk
     return True
 
 
-def plan_sequence(motion: str, frames: int, seed: int, config: SynthConfig | None = None) -> SequencePlan:
-    """Build the scene and the per-frame rigs of sequence (motion, seed) and its calib.json record.
-
-    Scenes are drawn until the whole path keeps clear of every surface (a straight or turning path may be
-    cut short where it meets an obstacle, see ``long_enough``) and the views are usable
-    (``_views_are_usable``).
-    Call ``release()`` on the plan when its frames are rendered.
-    """
-    from stereogeo_cli.synth.sample import get_renderer
+def _draw_scene(motion, seed, rng, cfg, renderer, rig_sample, u, duration, intrinsics):
+    """Scenes and paths drawn until one fits (see :func:`plan_sequence`): (motion, scene, rigs, sky index,
+    sky yaw, vertex arrays, attempts). ``intrinsics`` maps a placed rig to the rig the frames render."""
     from stereogeo_cli.synth.scenes import build_scene
+    from stereogeo_cli.synth.traffic import build_road
 
-    if motion not in MOTIONS:
-        raise StereoGeoError(f"unknown sequence motion {motion!r}; choose from {', '.join(MOTIONS)}")
-    if frames < 1:
-        raise StereoGeoError("a sequence needs at least one frame (-n ≥ 1)")
-    cfg = config or sequence_config()
-    renderer = get_renderer(seed, cfg)
-    rig_sample = sample_sequence_rig(seed, cfg)
-    rng = np.random.default_rng([seed, 0x5E9, MOTIONS.index(motion) + 1])
-    u = np.linspace(0.0, 1.0, frames) if frames > 1 else np.zeros(1)
     for attempt in range(ATTEMPTS):
-        outdoor = bool(rng.random() < cfg.outdoor_share)
+        outdoor = bool(rng.random() < cfg.outdoor_share) or motion == "drive"
         kind = MOTION_SCENES[motion][int(outdoor)]
         if kind == "room" and motion == "handheld" and rng.random() < cfg.close_share:
             kind = "desk"
         choices = renderer.sky_choices["outdoor" if outdoor else "window"]
         sky_index = choices[min(int(rng.random() * len(choices)), len(choices) - 1)]
         sky_yaw = float(rng.random())
-        plan_motion = sample_motion(rng, motion, outdoor)
-        scene = build_scene(rng, rig_sample, renderer.materials, kind, baseline_m=cfg.baseline_m)
+        plan_motion = sample_motion(rng, motion, outdoor, duration)
+        if kind == "road":  # the road is built along the drive's own path
+            track = plan_motion.at(np.linspace(0.0, 1.0, 401))[0][:, :2]
+            scene = build_road(rng, rig_sample, renderer.materials, track)
+        else:
+            scene = build_scene(rng, rig_sample, renderer.materials, kind, baseline_m=cfg.baseline_m)
         clearance = PATH_CLEARANCE_M / 2 if kind == "desk" else PATH_CLEARANCE_M
         extent = free_extent(plan_motion, rig_sample, scene.rig, _triangles(scene), clearance)
         if extent < 1.0:
@@ -388,15 +496,78 @@ def plan_sequence(motion: str, frames: int, seed: int, config: SynthConfig | Non
         if attempt < ATTEMPTS - 1 and not _views_are_usable(renderer, scene, vaos, rigs, sky_index, sky_yaw):
             renderer.release(vaos)
             continue
-        break
-    else:
-        raise StereoGeoError(f"no {motion} path fits a scene after {ATTEMPTS} tries (seed {seed})")
-    timestamps = u * DURATION_S[motion]
-    calib = _calib(motion, seed, cfg, plan_motion, rig_sample, scene, rigs, timestamps, attempt + 1)
-    calib["extra"]["sky"] = renderer.sky_name(sky_index)
-    return SequencePlan(
-        plan_motion, scene, rigs, timestamps, sky_index, sky_yaw, calib, seed, cfg, renderer, vaos
+        # the views are judged with the ideal intrinsics, so an effect on K never changes the scene drawn
+        return plan_motion, scene, [intrinsics(r) for r in rigs], sky_index, sky_yaw, vaos, attempt + 1
+    raise StereoGeoError(f"no {motion} path fits a scene after {ATTEMPTS} tries (seed {seed})")
+
+
+def _with_movers(scene, count: int, stream: list, materials, plan_motion, rig_sample, timestamps, duration):
+    """The scene with ``count`` cars and people moving on their own (traffic.place_movers; its own random
+    stream, so the scene and the path stay those of the same seed without them)."""
+    from stereogeo_cli.synth.traffic import place_movers
+
+    rng = np.random.default_rng([*stream, 0xEFF, 3])
+    triangles = _triangles(scene)
+
+    def rigs_at(times):
+        return frame_rigs(plan_motion, rig_sample, scene.rig, np.asarray(times, dtype=float) / duration)
+
+    def distance(points):
+        return distance_to_triangles(points, triangles, 2.0)
+
+    return replace(scene, movers=place_movers(rng, scene, materials, count, timestamps, rigs_at, distance))
+
+
+def plan_sequence(
+    motion: str,
+    frames: int,
+    seed: int,
+    config: SynthConfig | None = None,
+    effects: SequenceEffects | None = None,
+) -> SequencePlan:
+    """Build the scene and the per-frame rigs of sequence (motion, seed) and its calib.json record.
+
+    Scenes are drawn until the whole path keeps clear of every surface (a straight or turning path may be
+    cut short where it meets an obstacle, see ``long_enough``) and the views are usable
+    (``_views_are_usable``). ``effects`` (default: none) add the effects of real recordings.
+    Call ``release()`` on the plan when its frames are rendered.
+    """
+    from stereogeo_cli.synth.sample import get_renderer
+
+    if motion not in MOTIONS:
+        raise StereoGeoError(f"unknown sequence motion {motion!r}; choose from {', '.join(MOTIONS)}")
+    if frames < 1:
+        raise StereoGeoError("a sequence needs at least one frame (-n ≥ 1)")
+    cfg = config or sequence_config(motion)
+    effects = effects or SequenceEffects()
+    renderer = get_renderer(seed, cfg)
+    rig_sample = sample_sequence_rig(seed, cfg)
+    if motion == "drive":
+        rig_sample = rectified(rig_sample)
+    stream = [seed, 0x5E9, MOTIONS.index(motion) + 1]
+    rng = np.random.default_rng(stream)
+    u = np.linspace(0.0, 1.0, frames) if frames > 1 else np.zeros(1)
+    duration = motion_duration(motion, frames)
+
+    def intrinsics(rig: Rig) -> Rig:
+        return with_intrinsics(rig, effects, seed)
+
+    plan_motion, scene, rigs, sky_index, sky_yaw, vaos, attempts = _draw_scene(
+        motion, seed, rng, cfg, renderer, rig_sample, u, duration, intrinsics
     )
+    timestamps = u * duration
+    if effects.moving_objects:
+        args = (renderer.materials, plan_motion, rig_sample, timestamps, duration)
+        scene = _with_movers(scene, effects.moving_objects, stream, *args)
+    calib = _calib(motion, seed, cfg, plan_motion, rig_sample, scene, rigs, timestamps, attempts, duration)
+    calib["extra"]["sky"] = renderer.sky_name(sky_index)
+    gains = exposure_gains(seed, MOTIONS.index(motion) + 1, timestamps, effects.exposure_stops)
+    if effects.active:
+        _record_effects(calib, effects, seed, scene, gains)
+    return SequencePlan(
+        plan_motion, scene, rigs, timestamps, sky_index, sky_yaw, calib, seed, cfg, renderer, vaos,
+        rig_sample, effects, duration, gains,
+    )  # fmt: skip
 
 
 def _pose(camera: Camera) -> np.ndarray:
@@ -407,7 +578,16 @@ def _pose(camera: Camera) -> np.ndarray:
     return P
 
 
-def _calib(motion, seed, cfg, plan_motion, rig_sample, scene, rigs, timestamps, attempts) -> dict:
+def _intrinsics_note(cam: Camera) -> str:
+    if cam.principal is None and cam.aspect == 1.0:
+        return "principal point exactly (w/2, h/2)"
+    (cx, cy), (mx, my) = cam.cx_cy, (cam.width / 2, cam.height / 2)
+    return (
+        f"principal point ({cx:g}, {cy:g}) where the image centre is ({mx:g}, {my:g}), fy/fx {cam.aspect:g}"
+    )
+
+
+def _calib(motion, seed, cfg, plan_motion, rig_sample, scene, rigs, timestamps, attempts, duration) -> dict:
     first = rigs[0]
 
     def camera(cam: Camera) -> dict:
@@ -421,7 +601,7 @@ def _calib(motion, seed, cfg, plan_motion, rig_sample, scene, rigs, timestamps, 
         k: (str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v)
         for k, v in asdict(cfg).items()
     }
-    rate = (len(rigs) - 1) / DURATION_S[motion] if len(rigs) > 1 else 0.0
+    rate = (len(rigs) - 1) / duration if len(rigs) > 1 else 0.0
     return {
         "left": camera(first.left),
         "right": camera(first.right),
@@ -438,7 +618,7 @@ def _calib(motion, seed, cfg, plan_motion, rig_sample, scene, rigs, timestamps, 
             "world": "the scene's frame: x east, y north, z up, metres",
             "frames": len(rigs),
             "rate_hz": float(rate),
-            "duration_s": DURATION_S[motion],
+            "duration_s": duration,
             "vfov_deg": [float(np.degrees(rig_sample.vfov_left)), float(np.degrees(rig_sample.vfov_right))],
             "baseline_m": float(np.linalg.norm(first.T)),
             "rig_rotation_deg": float(np.degrees(rotation_angle(first.R))),
@@ -454,9 +634,71 @@ def _calib(motion, seed, cfg, plan_motion, rig_sample, scene, rigs, timestamps, 
         },
         "notes": (
             f"{GENERATOR} {motion}, seed {seed}, scene {scene.kind}: rendered, undistorted pinhole, "
-            "principal point exactly (w/2, h/2) with pixel (0, 0) the centre of the top-left pixel"
+            f"{_intrinsics_note(first.left)} with pixel (0, 0) the centre of the top-left pixel"
         ),
     }
+
+
+def _record_effects(calib: dict, effects: SequenceEffects, seed: int, scene, gains) -> None:
+    """calib.json's record of the effects that are on: ``extra.effects`` (the options, a random principal
+    point offset as drawn), ``extra.moving_objects``, ``extra.exposure_gain`` [N x 2], ``extra.h264``, and
+    a line in the notes."""
+    from stereogeo_cli.synth.effects import BLUR_SUBFRAMES
+    from stereogeo_cli.synth.video import PRESET
+
+    extra = calib["extra"]
+    extra["effects"] = effects.to_json(seed)
+    said = []
+    if effects.changes_intrinsics():
+        said.append("an off-ideal K (principal point, fy/fx)")
+    if effects.h264_kbps is not None:
+        video = ["left.mp4", "right.mp4"] if effects.keep_video else None
+        extra["h264"] = {"kbps": effects.h264_kbps, "encoder": "libx264 (PyAV)", "preset": PRESET,
+                         "pix_fmt": "yuv420p", "video": video}  # fmt: skip
+        said.append(f"frames through H.264 at {effects.h264_kbps:g} kbit/s")
+    if gains is not None:
+        extra["exposure_gain"] = gains.tolist()
+        said.append(f"exposure drifting by up to ±{effects.exposure_stops:g} stops")
+    if effects.motion_blur_ms > 0:
+        extra["motion_blur_subframes"] = BLUR_SUBFRAMES
+        said.append(f"motion blur over {effects.motion_blur_ms:g} ms (poses at mid-exposure)")
+    if effects.moving_objects:
+        extra["moving_objects"] = [
+            {"kind": m.kind, "size_m": [float(v) for v in m.size], "speed_mps": float(m.speed)}
+            for m in scene.movers
+        ]
+        said.append(f"{len(scene.movers)} objects moving on their own")
+    calib["notes"] += "; effects: " + ", ".join(said)
+
+
+def _mover_vaos(plan: SequencePlan, t: float) -> list:
+    """Vertex arrays of the scene's moving objects at time ``t`` (none without them); release after use."""
+    if not plan.scene.movers:
+        return []
+    surfaces = np.concatenate([m.surfaces(t) for m in plan.scene.movers])
+    alone = replace(plan.scene, surfaces=surfaces, windows=np.zeros((0, 3), np.float32), movers=())
+    return plan.renderer.upload(alone)
+
+
+def _render_views(plan: SequencePlan, index: int) -> list[np.ndarray]:
+    """The two colour images of frame ``index`` before photometry: one render at the frame's time, or the
+    mean of sub-frame renders over the exposure with motion blur."""
+    r, t = plan.renderer, float(plan.timestamps[index])
+    still = plan.motion.kind == "static" and not plan.scene.movers
+    if plan.effects.motion_blur_ms > 0 and not still:
+        times = subframe_times(t, plan.effects.motion_blur_ms)
+        rigs = plan.rigs_at(times)
+    else:
+        times, rigs = [t], [plan.rigs[index]]
+    views: list[list[np.ndarray]] = [[], []]
+    for time, rig in zip(times, rigs, strict=True):
+        extra = _mover_vaos(plan, time)
+        for side, camera in enumerate((rig.left, rig.right)):
+            views[side].append(
+                r.render_color(camera, plan.sky_index, plan.sky_yaw, plan.scene, plan.vaos + extra)
+            )
+        r.release(extra)
+    return [v[0] if len(v) == 1 else mean_image(v) for v in views]
 
 
 def render_frame(plan: SequencePlan, index: int, stream: int = 0):
@@ -464,7 +706,8 @@ def render_frame(plan: SequencePlan, index: int, stream: int = 0):
 
     Photometric changes (``config.augment``) are one draw per camera for the whole sequence (exposure,
     gamma, white balance; no blur) and new sensor noise per frame (``stream``: the frame whose noise is
-    used; a static sequence uses frame 0's for every frame).
+    used; a static sequence uses frame 0's for every frame). The effects' exposure drift scales each
+    frame before that, and motion blur and moving objects are rendered in (depth at the frame's time).
     """
     from stereogeo_cli.synth.sample import Exposure, augment
 
@@ -472,14 +715,17 @@ def render_frame(plan: SequencePlan, index: int, stream: int = 0):
     base = [plan.seed, 0x5E9, MOTIONS.index(plan.motion.kind) + 1]
     exposure = Exposure.sample(np.random.default_rng([*base, 2]), cfg.augment)
     images = []
-    for side, camera in enumerate((rig.left, rig.right)):
-        image = r.render_color(camera, plan.sky_index, plan.sky_yaw, plan.scene, plan.vaos)
+    for side, image in enumerate(_render_views(plan, index)):
+        if plan.gains is not None:
+            image = apply_gain(image, float(plan.gains[index, side]))
         camera_rng = np.random.default_rng([*base, 3, side])
         noise_rng = np.random.default_rng([*base, 4, side, stream])
         images.append(augment(camera_rng, image, cfg.augment, exposure, noise_rng=noise_rng, blur_share=0.0))
     depths = [None, None]
     if cfg.depth:
-        depths = [r.render_depth(c, plan.scene, plan.vaos) for c in (rig.left, rig.right)]
+        extra = _mover_vaos(plan, float(plan.timestamps[index]))
+        depths = [r.render_depth(c, plan.scene, plan.vaos + extra) for c in (rig.left, rig.right)]
+        r.release(extra)
     return images[0], images[1], depths[0], depths[1]
 
 
@@ -495,11 +741,15 @@ class SequenceSummary:
 
 
 _FRAME_FILE = re.compile(r"^\d{6}\.(png|npy)$")
+_VIDEO_FILES = ("left.mp4", "right.mp4")  # written with --h264 --keep-video
 
 
 def _holds_only_frames(folder: Path) -> bool:
-    """Whether ``folder`` holds nothing but left/, right/ and depth/ with frame files (an interrupted run)."""
+    """Whether ``folder`` holds nothing but left/, right/ and depth/ with frame files, and videos (an
+    interrupted run)."""
     for entry in folder.iterdir():
+        if entry.is_file() and (entry.name in _VIDEO_FILES or entry.name.startswith(".tmp-")):
+            continue
         if entry.name not in ("left", "right", "depth") or not entry.is_dir():
             return False
         for path in entry.rglob("*"):
@@ -510,7 +760,8 @@ def _holds_only_frames(folder: Path) -> bool:
 
 def _prepare_folder(folder: Path) -> None:
     """Make the folder; refuse one that holds something other than a sequence this command wrote (or
-    began to write), and remove the frames of an earlier sequence there (a new one may have fewer)."""
+    began to write), and remove the frames and videos of an earlier sequence there (a new one may have
+    fewer)."""
     calib = folder / "calib.json"
     if folder.is_dir() and any(folder.iterdir()):
         try:
@@ -527,12 +778,50 @@ def _prepare_folder(folder: Path) -> None:
                 for old in (folder / sub).iterdir():
                     if _FRAME_FILE.match(old.name) or old.name.startswith(".tmp-"):
                         old.unlink()
+        for old in folder.iterdir():
+            if old.is_file() and (old.name in _VIDEO_FILES or old.name.startswith(".tmp-")):
+                old.unlink()
         calib.unlink(missing_ok=True)
     try:
         for sub in ("left", "right"):
             (folder / sub).mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise StereoGeoError(f"cannot create the output folder {folder}: {error.strerror}") from error
+
+
+def _open_videos(folder: Path, plan: SequencePlan) -> list:
+    """The two H.264 writers of an ``h264_kbps`` sequence (temporary files in the folder)."""
+    from stereogeo_cli.synth.video import H264Writer
+
+    cam, rate = plan.rigs[0].left, plan.calib["extra"]["rate_hz"] or DRIVE_RATE_HZ
+    kbps = plan.effects.h264_kbps
+    return [H264Writer(folder / f".tmp-{side}.mp4", cam.width, cam.height, rate, kbps) for side in _SIDES]
+
+
+def _finish_videos(folder: Path, plan: SequencePlan, writers: list, frames: int) -> None:
+    """Close the videos, write their decoded frames as the sequence's PNGs, and keep the videos as
+    left.mp4 and right.mp4 (``keep_video``) or remove them."""
+    from stereogeo_cli.synth.dataset import _atomic_write, _png
+    from stereogeo_cli.synth.sample import sample_id
+    from stereogeo_cli.synth.video import read_h264
+
+    cam = plan.rigs[0].left
+    for side, writer in zip(_SIDES, writers, strict=True):
+        writer.close()
+        video = folder / f".tmp-{side}.mp4"
+        count = 0
+        for k, image in enumerate(read_h264(video, cam.width, cam.height)):
+            _atomic_write(folder / side / f"{sample_id(k)}.png", _png(image))
+            count += 1
+        if count != frames:  # pragma: no cover - the encoder flushes every frame
+            raise StereoGeoError(f"internal: the {side} video decoded to {count} frames of {frames}")
+        if plan.effects.keep_video:
+            video.replace(folder / f"{side}.mp4")
+        else:
+            video.unlink()
+
+
+_SIDES = ("left", "right")
 
 
 def make_sequence(
@@ -542,24 +831,27 @@ def make_sequence(
     seed: int = 0,
     config: SynthConfig | None = None,
     progress: bool = True,
+    effects: SequenceEffects | None = None,
 ) -> SequenceSummary:
     """Render sequence (motion, seed) of ``frames`` pairs into ``folder``: left/<frame>.png,
-    right/<frame>.png (frames 000000, 000001, … in time order), depth/ with ``config.depth``, and
-    calib.json last. The same arguments give the same bytes; a folder holding an earlier (or interrupted)
-    sequence is overwritten, any other non-empty folder is refused."""
+    right/<frame>.png (frames 000000, 000001, … in time order), depth/ with ``config.depth``, left.mp4 and
+    right.mp4 with ``effects.keep_video``, and calib.json last. The same arguments give the same bytes; a
+    folder holding an earlier (or interrupted) sequence is overwritten, any other non-empty folder is
+    refused."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from stereogeo_cli.synth.dataset import _atomic_write, _npy, _png
     from stereogeo_cli.synth.sample import sample_id
 
     folder = Path(folder)
-    cfg = config or sequence_config()
+    cfg = config or sequence_config(motion)
     _prepare_folder(folder)
-    plan = plan_sequence(motion, frames, seed, cfg)
+    plan = plan_sequence(motion, frames, seed, cfg, effects)
     try:
         if cfg.depth:
-            for side in ("left", "right"):
+            for side in _SIDES:
                 (folder / "depth" / side).mkdir(parents=True, exist_ok=True)
+        writers = _open_videos(folder, plan) if plan.effects.h264_kbps is not None else None
         columns = (
             TextColumn(f"rendering {motion}"),
             BarColumn(),
@@ -569,19 +861,25 @@ def make_sequence(
         with Progress(*columns, disable=not progress, transient=False) as bar:
             task = bar.add_task("render", total=frames)
             still = None
+            same_every_frame = motion == "static" and plan.gains is None and not plan.scene.movers
             for k in range(frames):
-                if motion == "static":  # one pair, the same bytes in every frame
+                if same_every_frame:  # one pair, the same bytes in every frame
                     still = still or render_frame(plan, 0)
                     views = still
                 else:
-                    views = render_frame(plan, k, stream=k)
+                    views = render_frame(plan, k, stream=0 if motion == "static" else k)
                 name = sample_id(k)
-                for side, image in zip(("left", "right"), views[:2], strict=True):
-                    _atomic_write(folder / side / f"{name}.png", _png(image))
-                for side, depth in zip(("left", "right"), views[2:], strict=True):
+                for side, image, writer in zip(_SIDES, views[:2], writers or [None, None], strict=True):
+                    if writer is not None:
+                        writer.add(image)
+                    else:
+                        _atomic_write(folder / side / f"{name}.png", _png(image))
+                for side, depth in zip(_SIDES, views[2:], strict=True):
                     if depth is not None:
                         _atomic_write(folder / "depth" / side / f"{name}.npy", _npy(depth))
                 bar.advance(task)
+        if writers is not None:
+            _finish_videos(folder, plan, writers, frames)
     finally:
         plan.release()
     _atomic_write(folder / "calib.json", (json.dumps(plan.calib, indent=1) + "\n").encode())
