@@ -125,13 +125,20 @@ def print_summary(rows: list[dict]) -> None:
     for row in rows:
         if "error" not in row:
             groups.setdefault((row["motion"], row["effect"]), []).append(row)
-    print(f"\nmedians over seeds\n{'motion':8} {'effect':10} {'|focal L| %':>11} {'|z|':>6} {'R err °':>8}")
-    for (motion, effect), group in groups.items():
+    print(f"\nmedians over seeds\n{'motion':8} {'effect':10} {'|focal L| %':>11} {'|z|':>6} {'R err °':>8} "
+          f"{'within 1σ / 3σ':>15}")  # fmt: skip
+    for (motion, effect), group in [*groups.items(), (("all", ""), [r for g in groups.values() for r in g])]:
         focal = statistics.median(abs(r["focal_left_pct"]) for r in group)
-        z = [r["z_left"] for r in group if r["z_left"] is not None]
+        z = [abs(r["z_left"]) for r in group if r["z_left"] is not None]
+        shares = f"{_share(z, 1.0)} / {_share(z, 3.0)}"
         z = _cell(statistics.median(z) if z else None, 1)
         R = statistics.median(r["R_deg"] for r in group)
-        print(f"{motion:8} {effect:10} {focal:>11.2f} {z:>6} {R:>8.3f}")
+        print(f"{motion:8} {effect:10} {focal:>11.2f} {z:>6} {R:>8.3f} {shares:>15}")
+
+
+def _share(z: list[float], k: float) -> str:
+    """The share of |z| within k, as a percentage of the readings with a sigma."""
+    return f"{100 * sum(v <= k for v in z) / len(z):.0f} %" if z else "–"
 
 
 def main() -> None:

@@ -787,9 +787,31 @@ _SequenceSbs = Annotated[
 _SequenceFps = Annotated[
     float | None,
     typer.Option(
-        help="Videos and bags: keep frames at most this many per second; a folder: its frame rate "
-        "(the frames' times)."
+        help="Videos and bags: keep frames at most this many per second, in place of keyframes; a folder: "
+        "its frame rate (the frames' times; keyframes still choose)."
     ),
+]
+_SequenceEvery = Annotated[
+    int | None, typer.Option(help="Keep every Nth frame pair, in place of keyframes.", show_default=False)
+]
+_SequenceMaxFrames = Annotated[
+    int | None,
+    typer.Option(
+        help="Use the first N frame pairs (after --every), in place of keyframes.", show_default=False
+    ),
+]
+_SequenceKeyframes = Annotated[
+    bool,
+    typer.Option(
+        "--keyframes/--all-frames",
+        help="Keep the frames the motion makes informative (optical flow from the last kept frame: 0.5 % "
+        "of the image's larger side, half that where the rig turns) and leave out near-duplicates of a "
+        "rig standing still; or keep every frame. --every, --max-frames and a video's or bag's --fps "
+        "choose the frames instead.",
+    ),
+]
+_SequenceMaxKeyframes = Annotated[
+    int, typer.Option(help="Keep at most this many keyframes, evenly spread over the recording.")
 ]
 _SequenceFormats = Annotated[
     str,
@@ -839,9 +861,11 @@ def calibrate_sequence(
     sbs: _SequenceSbs = None,
     left_topic: Annotated[str | None, typer.Option(help="The bag's left image topic.")] = None,
     right_topic: Annotated[str | None, typer.Option(help="The bag's right image topic.")] = None,
-    every: Annotated[int, typer.Option(help="Keep every Nth frame pair.")] = 1,
+    every: _SequenceEvery = None,
     fps: _SequenceFps = None,
-    max_frames: Annotated[int | None, typer.Option(help="Use at most this many frame pairs.")] = None,
+    max_frames: _SequenceMaxFrames = None,
+    keyframes: _SequenceKeyframes = True,
+    max_keyframes: _SequenceMaxKeyframes = 150,
     formats: _SequenceFormats = "opencv,ros,kalibr,colmap,json,html",
     overwrite: _SequenceOverwrite = False,
     json_out: JsonOption = False,
@@ -869,7 +893,8 @@ def calibrate_sequence(
             with stage:
                 written, result = _run_sequence(
                     stop, stage, source, output=output, video=video, sbs=sbs, left_topic=left_topic,
-                    right_topic=right_topic, every=every, fps=fps, max_frames=max_frames, formats=formats,
+                    right_topic=right_topic, every=every, fps=fps, max_frames=max_frames,
+                    keyframes=(keyframes, max_keyframes), formats=formats,
                     overwrite=overwrite, baseline=baseline, pinhole=pinhole, rotate=rotate,
                     stamp_tolerance=stamp_tolerance, workspace=workspace, model=model, threads=threads,
                 )  # fmt: skip
@@ -906,13 +931,13 @@ def _ignore_signals_from_now() -> None:
 
 
 def _run_sequence(stop, stage, source, *, output, video, sbs, left_topic, right_topic, every, fps, max_frames,
-                  formats, overwrite, baseline, pinhole, rotate, stamp_tolerance, workspace, model,
+                  keyframes, formats, overwrite, baseline, pinhole, rotate, stamp_tolerance, workspace, model,
                   threads) -> tuple[list[Path], object]:  # fmt: skip
     """``calibrate-sequence``'s work: the options checked, the source opened, the rig calibrated and its
     files written; ([], None) where ``stop`` came first."""
     _check_calibrate_options(baseline, None, None, None, threads)
     _check_rotate(rotate)
-    for name, value in (("--every", every), ("--max-frames", max_frames)):
+    for name, value in (("--every", every), ("--max-frames", max_frames), ("--max-keyframes", keyframes[1])):
         if value is not None and value < 1:
             raise StereoGeoError(f"{name} must be at least 1, got {value}")
     if fps is not None and not (math.isfinite(fps) and fps > 0):
@@ -931,11 +956,15 @@ def _run_sequence(stop, stage, source, *, output, video, sbs, left_topic, right_
 
     stage(0, None, "opening the source")
     frames = open_source(
-        source, video=video, sbs=sbs, left_topic=left_topic, right_topic=right_topic, every=every, fps=fps,
-        max_frames=max_frames, tolerance_s=stamp_tolerance,
+        source, video=video, sbs=sbs, left_topic=left_topic, right_topic=right_topic,
+        every=1 if every is None else every, fps=fps, max_frames=max_frames, tolerance_s=stamp_tolerance,
     )  # fmt: skip
     if stop.requested:
         return [], None
+    if keyframes[0] and every is None and max_frames is None and (fps is None or _is_folder(frames)):
+        frames = _keyframes(frames, keyframes[1], stage, stop)
+        if stop.requested:
+            return [], None
     stage(0, None, "loading the network")
     calibrator = Calibrator(model, threads=threads, conf=calibrator_conf(pinhole))
     result = run_sequence(
@@ -948,6 +977,22 @@ def _run_sequence(stop, stage, source, *, output, video, sbs, left_topic, right_
         return [], result
     stage(0, None, "writing the results")
     return write_sequence(output, result, names, overwrite=overwrite, stop=stop), result
+
+
+def _is_folder(frames) -> bool:
+    from stereogeo_cli.sequence.sources import FolderSource
+
+    return isinstance(frames, FolderSource)  # a folder's --fps sets its times and chooses no frame
+
+
+def _keyframes(frames, max_kept: int, stage, stop):
+    """The keyframes of ``frames`` (sequence/keyframes.py), chosen in a first pass shown as a stage."""
+    from stereogeo_cli.sequence.keyframes import KeyframeSource, choose_keyframes
+
+    stage(0, frames.count(), "choosing keyframes by motion")
+    choice = choose_keyframes(frames, {"max_kept": max_kept}, progress=stage, stop=stop)
+    stage.note(f"{len(choice.kept)} of {choice.read} kept")
+    return KeyframeSource(frames, choice)
 
 
 def _print_sequence_summary(report: dict, console, warnings_console) -> None:
@@ -975,8 +1020,10 @@ def _print_sequence_summary(report: dict, console, warnings_console) -> None:
             f"{seq['reprojection_error_px']:.2f} px"
         )
     turned = "" if seq["rotation_span_deg"] is None else f", the rig turned {seq['rotation_span_deg']:.1f}°"
+    kept = seq.get("frames_kept", seq["frames_read"])
     console.print(
-        f"frames {seq['frames_registered']} of {seq['frames_read']} registered{turned}: focal length "
+        f"frames {seq['frames_read']} read, {kept} kept, {seq['frames_registered']} registered{turned}: "
+        "focal length "
         + ("fixed by the motion" if seq["focal_observable"] else "NOT fixed by the motion (from the pairs)")
     )
     for warning in report.get("warnings") or []:

@@ -64,6 +64,7 @@ class StageProgress:
         self.mode, self._console = mode, console
         self._bar = self._task = self._stage = None
         self._done, self._total, self._start = 0, None, 0.0
+        self._note = ""
 
     def __enter__(self):
         if self.mode == "bar":
@@ -87,13 +88,22 @@ class StageProgress:
             return
         if stage is not None and stage != self._stage:
             self._end()
-            self._stage, self._start = stage, time.perf_counter()
+            self._stage, self._start, self._note = stage, time.perf_counter(), ""
             if self._bar is not None:
                 self._task = self._bar.add_task(stage, total=total, count="")
         self._done, self._total = done, total
         if self._bar is not None and self._task is not None:
             count = f"{done}/{total}" if total else ""
             self._bar.update(self._task, completed=done, total=total, count=count)
+
+    def note(self, text: str) -> None:
+        """What the stage in flight found (e.g. ``30 of 54 kept``), shown after its name."""
+        if self.mode == "off" or self._stage is None:
+            return
+        self._note = text
+        if self._bar is not None and self._task is not None:
+            count = f"{self._done}/{self._total} " if self._total else ""
+            self._bar.update(self._task, count=f"{count}({text})")
 
     def _end(self, stopped: bool = False) -> None:
         """End the stage in flight: complete, or ``stopped`` before its end."""
@@ -108,7 +118,8 @@ class StageProgress:
             count = f", {self._done} of {self._total}" if self._total else ""
             elapsed = time.perf_counter() - self._start
             ended = f"stopped after {elapsed:.1f} s" if stopped else f"{elapsed:.1f} s"
-            print(f"{self._stage}{count}: {ended}", file=sys.stderr, flush=True)
+            note = f" ({self._note})" if self._note else ""
+            print(f"{self._stage}{count}{note}: {ended}", file=sys.stderr, flush=True)
         self._stage = None
 
     def stopped(self) -> None:

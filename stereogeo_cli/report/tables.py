@@ -169,11 +169,12 @@ def warnings_list(report: dict) -> str:
 
 
 def sequence_table(report: dict) -> str:
-    """A sequence's frames read and registered, its models, the adjustment's reprojection error, the
+    """A sequence's frames read, kept and registered, its models, the adjustment's reprojection error, the
     motion's turn, and the left-out stretches' row check."""
     seq = report["sequence"]
     rows = [
         ("frames read (after --every, --fps, --max-frames)", number(report, "sequence.frames_read", 0)),
+        ("frames kept (keyframes by motion, or all)", number(report, "sequence.frames_kept", 0)),
         ("frames registered by the adjustment", number(report, "sequence.frames_registered", 0)),
         ("frames with a roll and pitch", f'<span class="derived">{len(seq.get("frames") or [])}</span>'),
         ("models the mapping made", number(report, "sequence.models", 0)),
@@ -182,6 +183,9 @@ def sequence_table(report: dict) -> str:
         ("rotation span (°)", number(report, "sequence.rotation_span_deg", 1)),
         ("focal length fixed by the motion", _text(seq.get("focal_observable"))),
     ]
+    if seq.get("principal_point_reading"):
+        rows.append(("the principal points freed under a prior: the focal length parts by (%)",
+                     number(report, "sequence.principal_point_reading.focal_rel", 2, 100.0)))  # fmt: skip
     if seq.get("left_out"):
         rows.append(("left-out frames, rectified: row difference median / 95 % (px)",
                      f"{number(report, 'sequence.left_out.row_error_px.median', 3)} / "

@@ -616,6 +616,7 @@ class CentreReading:
     rotation_deg: float
     direction_deg: float
     principal_points: tuple[tuple[float, float], tuple[float, float]]
+    focal_px: tuple[float, float]  # the reading's focal lengths (left, right)
     prior_share: float  # the prior's 1-sigma, a share of the image's longer side
 
     def to_report(self) -> dict:
@@ -624,6 +625,7 @@ class CentreReading:
             "rotation_deg": self.rotation_deg,
             "direction_deg": self.direction_deg,
             "prior_sigma_rel": self.prior_share,
+            "focal_px": list(self.focal_px),
             "principal_point_px": {
                 side: list(point)
                 for side, point in zip(("left", "right"), self.principal_points, strict=True)
@@ -645,7 +647,8 @@ def centre_reading(reconstruction, radial: bool, free_centre: bool, conf: dict, 
         (trial.cameras[i].principal_point_x - 0.5, trial.cameras[i].principal_point_y - 0.5)
         for i in _camera_ids(trial)
     )
-    return CentreReading(*_parting(_block_fit(reconstruction), _block_fit(trial)), points, prior.share)
+    fit = _block_fit(trial)
+    return CentreReading(*_parting(_block_fit(reconstruction), fit), points, tuple(fit.focal_px), prior.share)
 
 
 def left_out_blocks(reconstruction, radial: bool, free_centre: bool, sizes: tuple, conf: dict, stop=None):
@@ -853,7 +856,7 @@ def reconstruct(
             )
         stage("COLMAP: bundle adjustment")
         cameras, adjusted = adjust(models[0], radial, conf, stop)
-        stage("COLMAP: stretches of frames left out, a robust adjustment")
+        stage("COLMAP: cross-checking the adjustment")  # the left-out stretches and the two readings
         sizes = tuple((start.height, start.width) for start in starts)
         free_centre = cameras[0].principal_point_refined
         left_out = left_out_blocks(adjusted, radial, free_centre, sizes, conf, stop)

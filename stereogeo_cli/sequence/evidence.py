@@ -32,7 +32,8 @@ default_conf = {
     "focal_floor_rel_free_centre": 0.01,
     # the principal point's 1-sigma as a share of the image's larger side: held at the centre (a real
     # camera's lies up to ~2 % off it) or freed by the adjustment (then within ~0.5 %); it turns the rig's
-    # R and T's direction by about σ / f radians, which their reported sigmas take in
+    # R and T's direction by about σ / f radians, which their reported sigmas take in (for held points only
+    # where no adjustment under a prior measured how far they turn them)
     "principal_point_sigma_rel": 0.02,
     "principal_point_sigma_rel_free": 0.005,
     # the motion "fixes" the focal length where the adjustment's sigma is below this share of the pairs'

@@ -56,6 +56,7 @@ from stereogeo_cli.sequence.evidence import (
     up_from_segments,
     world_up,
 )
+from stereogeo_cli.sequence.keyframes import with_frames_counted
 from stereogeo_cli.sequence.sources import FramePair, FrameSource
 from stereogeo_cli.settings import resolve
 
@@ -223,6 +224,9 @@ def calibrate_frames(
         )
     except CalibrationFailed as error:  # a static rig, or views that share nothing: the pairs alone
         notes.append(f"{error}; the calibration is the pairs' combined")
+        notes.append(
+            "the motion does not fix the focal length (no model to adjust): the pairs' readings are kept"
+        )
         return _pairs_only(
             frames, readings, sizes, starts, pair_focals, R0, T0, baseline_m, model_file, notes
         )
@@ -470,6 +474,8 @@ def calibrate_sequence(
         )  # fmt: skip
         if result is not None:
             result.calibration = with_rotation_noted(result.calibration, rotate)
+            # the frames read, kept (by keyframes, where the source chose them) and registered
+            result.calibration = with_frames_counted(result.calibration, source, len(read.frames))
         return result
     except colmap.Cancelled:
         return None
