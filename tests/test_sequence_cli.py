@@ -400,8 +400,11 @@ def test_a_rerun_into_a_used_folder_is_refused_and_overwrite_replaces_it_whole(t
     assert report["sequence"]["frames_registered"] == 16
     # without a terminal, each stage is one log line on stderr as it ends, with its time
     stages = [line for line in done.stderr.splitlines() if STAGE_LINE.match(line)]
-    first = ["opening the source", "loading the network", "reading and calibrating frame pairs, 16 of 16"]
-    assert [s.split(":")[0] for s in stages][:3] == first
+    first = [
+        "opening the source", "choosing keyframes by motion, 16 of 16 (16 of 16 kept)", "loading the network",
+        "reading and calibrating frame pairs, 16 of 16",
+    ]  # fmt: skip
+    assert [s.split(":")[0] for s in stages][:4] == first
     assert any(s.startswith("COLMAP: mapping: ") for s in stages)
     assert any(s.startswith("writing the results: ") for s in stages)
 
