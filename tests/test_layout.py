@@ -78,3 +78,17 @@ def test_batch_and_sequence_stand_side_by_side():
             for t in targets if t.startswith(f"stereogeo_cli.{b}")
         )  # fmt: skip
         assert not crossing, crossing
+
+
+MAX_FUNCTION_LINES = 80  # a function a reader takes in at once; longer ones split into named steps
+
+
+def test_every_function_is_short():
+    long = sorted(
+        f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {node.name}"
+        for path in PACKAGE.rglob("*.py")
+        for node in ast.walk(ast.parse(path.read_text()))
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
+        and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES
+    )
+    assert not long, long

@@ -262,25 +262,31 @@ def calibrate_frames(
     trajectory = [
         (by_index[f"{i:06d}.png"].time, np.linalg.inv(cam_from_world[i])) for i in sorted(cam_from_world)
     ]
-    if model.models > 1:
-        notes.append(f"the mapping broke the sequence into {model.models} models: the largest is used")
-    unregistered = len(frames) - len(registered)
-    if unregistered:
-        notes.append(f"{unregistered} of {plural(len(frames), 'frame')} could not be registered")
-    observable = all(f.observable for f in focals)
-    if not observable:
-        kept = (
-            "the pairs' readings are kept"
-            if all(f.adjustment_weight == 0.0 for f in focals)
-            else "the adjustment's and the pairs' readings are combined by their sigmas"
-        )
-        notes.append(f"the motion does not fix the focal length (too little rotation): {kept}")
+    notes.extend(_model_notes(model, len(frames), len(registered), focals))
     calibration = _assemble(
         frames, model, focals, attitudes, (up, up_sigma_deg, used, readings_up[1], segments_up), span,
         baseline, (scale_source, baseline_sigma), model_file, notes, timing,
         sizes, rig_sigmas,
     )  # fmt: skip
     return SequenceResult(calibration, model.reconstruction, trajectory)
+
+
+def _model_notes(model, frames: int, registered: int, focals) -> list[str]:
+    """What the report says of the model: a mapping broken into several models, frames left unregistered,
+    and a motion that does not fix the focal lengths (and what is reported instead)."""
+    notes = []
+    if model.models > 1:
+        notes.append(f"the mapping broke the sequence into {model.models} models: the largest is used")
+    if frames > registered:
+        notes.append(f"{frames - registered} of {plural(frames, 'frame')} could not be registered")
+    if not all(f.observable for f in focals):
+        kept = (
+            "the pairs' readings are kept"
+            if all(f.adjustment_weight == 0.0 for f in focals)
+            else "the adjustment's and the pairs' readings are combined by their sigmas"
+        )
+        notes.append(f"the motion does not fix the focal length (too little rotation): {kept}")
+    return notes
 
 
 def _rig_spread(model) -> tuple[float, float]:
