@@ -29,3 +29,20 @@ def symmetric_epipolar_distance(F: np.ndarray, x_left: np.ndarray, x_right: np.n
     d_right = num / np.linalg.norm(lines_right[:, :2], axis=1)
     d_left = num / np.linalg.norm(lines_left[:, :2], axis=1)
     return 0.5 * (d_right + d_left)
+
+
+def rectified_row_differences(
+    left: np.ndarray, right: np.ndarray, cameras: tuple, rectification: tuple
+) -> np.ndarray:
+    """|row difference| (px) of matches ``left``, ``right`` [N x 2] once both images are rectified:
+    ``cameras`` = (K_left, D_left, K_right, D_right) in OpenCV's model, ``rectification`` = (R1, P1, R2, P2)
+    as ``cv2.stereoRectify`` gives them. 0 for every match of a calibration the matches agree with."""
+    import cv2
+
+    if len(left) == 0:
+        return np.zeros(0)
+    K_left, D_left, K_right, D_right = cameras
+    R1, P1, R2, P2 = rectification
+    y_left = cv2.undistortPoints(np.asarray(left, float).reshape(-1, 1, 2), K_left, D_left, R=R1, P=P1)
+    y_right = cv2.undistortPoints(np.asarray(right, float).reshape(-1, 1, 2), K_right, D_right, R=R2, P=P2)
+    return np.abs(y_left.reshape(-1, 2)[:, 1] - y_right.reshape(-1, 2)[:, 1])

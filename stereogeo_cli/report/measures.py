@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 
-from stereogeo_cli.geometry import axis_angle_from_rotation, rotation_angle
+from stereogeo_cli.geometry import axis_angle_from_rotation, rectified_row_differences, rotation_angle
 from stereogeo_cli.io.calibration import StereoCalibration, rectify
 
 
@@ -17,15 +16,9 @@ def row_errors(calibration: StereoCalibration, left: np.ndarray, right: np.ndarr
     calibration (its ``cv2.stereoRectify``, as the written files rectify them)."""
     if len(left) == 0:
         return np.zeros(0)
-    rect = rectify(calibration)
-    c = calibration
-    y_left = cv2.undistortPoints(
-        np.asarray(left, float).reshape(-1, 1, 2), c.K_left, c.dist_left, R=rect.R1, P=rect.P1
-    ).reshape(-1, 2)[:, 1]
-    y_right = cv2.undistortPoints(
-        np.asarray(right, float).reshape(-1, 1, 2), c.K_right, c.dist_right, R=rect.R2, P=rect.P2
-    ).reshape(-1, 2)[:, 1]
-    return np.abs(y_left - y_right)
+    rect, c = rectify(calibration), calibration
+    cameras = (c.K_left, c.dist_left, c.K_right, c.dist_right)
+    return rectified_row_differences(left, right, cameras, (rect.R1, rect.P1, rect.R2, rect.P2))
 
 
 def rotation_apart_deg(R_a, R_b) -> float:

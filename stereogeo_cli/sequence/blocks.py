@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereogeo_cli.fuse.assemble import finite
-from stereogeo_cli.geometry import axis_angle_from_rotation
+from stereogeo_cli.geometry import axis_angle_from_rotation, rectified_row_differences
 from stereogeo_cli.rig.combine import chordal_mean, mean_direction
 
 default_conf = {
@@ -103,11 +103,8 @@ def row_errors(fit: BlockFit, sizes: tuple, pairs: list[tuple[np.ndarray, np.nda
     R1, R2, P1, P2, *_ = cv2.stereoRectify(
         fit.K[0], fit.D[0], fit.K[1], fit.D[1], (w, h), fit.R, fit.T.reshape(3, 1), alpha=0
     )
-    left = np.concatenate([p[0] for p in pairs]).reshape(-1, 1, 2)
-    right = np.concatenate([p[1] for p in pairs]).reshape(-1, 1, 2)
-    y_left = cv2.undistortPoints(left, fit.K[0], fit.D[0], R=R1, P=P1).reshape(-1, 2)[:, 1]
-    y_right = cv2.undistortPoints(right, fit.K[1], fit.D[1], R=R2, P=P2).reshape(-1, 2)[:, 1]
-    return np.abs(y_left - y_right)
+    left, right = (np.concatenate([p[side] for p in pairs]) for side in (0, 1))
+    return rectified_row_differences(left, right, (fit.K[0], fit.D[0], fit.K[1], fit.D[1]), (R1, P1, R2, P2))
 
 
 def summarise(fits: list[BlockFit], rows: np.ndarray) -> LeftOut:

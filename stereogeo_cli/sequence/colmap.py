@@ -78,8 +78,12 @@ class CameraStart:
         return "RADIAL" if self.radial else "SIMPLE_PINHOLE"
 
     def params(self) -> list[float]:
-        principal = [self.width / 2 + 0.5, self.height / 2 + 0.5]  # stereogeo's (w/2, h/2) in COLMAP's pixels
-        return [self.focal_px, *principal, *([0.0, 0.0] if self.radial else [])]
+        return [self.focal_px, *image_centre(self.width, self.height), *([0.0, 0.0] if self.radial else [])]
+
+
+def image_centre(width: int, height: int) -> tuple[float, float]:
+    """The image centre, stereogeo's principal point (w/2, h/2), in COLMAP's pixels (+0.5)."""
+    return width / 2 + 0.5, height / 2 + 0.5
 
 
 @dataclass
@@ -409,8 +413,7 @@ def _add_centre_prior(adjuster, reconstruction, prior: CentrePrior) -> list:
     costs = []
     for camera in reconstruction.cameras.values():
         sigma_px = prior.share * max(camera.width, camera.height)
-        centre = (camera.width / 2, camera.height / 2)  # COLMAP's pixels: stereogeo's (w/2, h/2) + 0.5
-        centre = (centre[0] + 0.5, centre[1] + 0.5)
+        centre = image_centre(camera.width, camera.height)
         cost = PrincipalPointPrior(
             len(camera.params), camera.principal_point_idxs(), centre, prior.noise_px / sigma_px
         )
@@ -557,25 +560,30 @@ def _correspondences(reconstruction, left_id: int, right_id: int) -> tuple[np.nd
 
 
 @dataclass(frozen=True)
-class RobustReading:
-    """How far the last adjustment moves when its residuals are weighed robustly (a Cauchy loss at the
-    residuals' own scale) instead of in least squares: the focal lengths' common scale (relative), R and
-    T's direction (degrees). Where the model fits the data (one camera model, a still scene, Gaussian
-    residuals) the two estimators agree to well within their sigmas; where they part, the minimum rests on
-    how the residuals are weighed, not on the data, and the parting is a sigma of its own."""
+class Parting:
+    """How far another adjustment of the same frames lies from the last one: the focal lengths' common
+    scale (relative), R and T's direction (degrees)."""
 
     focal_rel: float
     rotation_deg: float
     direction_deg: float
+
+    def to_report(self) -> dict:
+        return {name: getattr(self, name) for name in ("focal_rel", "rotation_deg", "direction_deg")}
+
+
+@dataclass(frozen=True)
+class RobustReading(Parting):
+    """How far the last adjustment moves when its residuals are weighed robustly (a Cauchy loss at the
+    residuals' own scale) instead of in least squares. Where the model fits the data (one camera model, a
+    still scene, Gaussian residuals) the two estimators agree to well within their sigmas; where they part,
+    the minimum rests on how the residuals are weighed, not on the data, and the parting is a sigma of its
+    own."""
+
     scale_px: float
 
     def to_report(self) -> dict:
-        return {
-            "focal_rel": self.focal_rel,
-            "rotation_deg": self.rotation_deg,
-            "direction_deg": self.direction_deg,
-            "loss_scale_px": self.scale_px,
-        }
+        return {**super().to_report(), "loss_scale_px": self.scale_px}
 
 
 def robust_reading(reconstruction, radial: bool, free_centre: bool, stop=None) -> RobustReading:
@@ -593,8 +601,7 @@ def robust_reading(reconstruction, radial: bool, free_centre: bool, stop=None) -
 
 
 def _parting(fit: BlockFit, other: BlockFit) -> tuple[float, float, float]:
-    """How far ``other`` lies from ``fit``: the focal lengths' common scale (relative), R and T's direction
-    (degrees)."""
+    """:class:`Parting`'s three numbers: how far ``other`` lies from ``fit``."""
     common = 0.5 * sum(math.log(o / f) for o, f in zip(other.focal_px, fit.focal_px, strict=True))
     cosine = float(other.T @ fit.T / (np.linalg.norm(other.T) * np.linalg.norm(fit.T)))
     return (
@@ -604,7 +611,7 @@ def _parting(fit: BlockFit, other: BlockFit) -> tuple[float, float, float]:
 
 
 @dataclass(frozen=True)
-class CentreReading:
+class CentreReading(Parting):
     """How far the last adjustment moves when its principal points are freed under a prior at the image
     centre (:class:`CentrePrior`) instead of held there (or freed without one). A real camera's principal
     point may lie a few per cent off the centre: where the reading parts from the adjustment, the focal
@@ -612,24 +619,17 @@ class CentreReading:
     with the focal length, and the two cameras' with R), not on the data, and the parting is a sigma of
     its own. ``principal_points``: the reading's, (left, right) in stereogeo's pixels."""
 
-    focal_rel: float
-    rotation_deg: float
-    direction_deg: float
     principal_points: tuple[tuple[float, float], tuple[float, float]]
     focal_px: tuple[float, float]  # the reading's focal lengths (left, right)
     prior_share: float  # the prior's 1-sigma, a share of the image's longer side
 
     def to_report(self) -> dict:
+        sides = ("left", "right")
         return {
-            "focal_rel": self.focal_rel,
-            "rotation_deg": self.rotation_deg,
-            "direction_deg": self.direction_deg,
+            **super().to_report(),
             "prior_sigma_rel": self.prior_share,
             "focal_px": list(self.focal_px),
-            "principal_point_px": {
-                side: list(point)
-                for side, point in zip(("left", "right"), self.principal_points, strict=True)
-            },
+            "principal_point_px": {s: list(p) for s, p in zip(sides, self.principal_points, strict=True)},
         }
 
 
