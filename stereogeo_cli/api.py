@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from stereogeo_cli.errors import StereoGeoError
-from stereogeo_cli.geometry import TURNS_DEG
-from stereogeo_cli.pipeline import CalibrationResult, Calibrator, calibrator_conf
+from stereogeo_cli.options import API_NAMES, PairOptions
+from stereogeo_cli.pipeline import CalibrationResult, Calibrator
 
 ImageInput = str | os.PathLike | np.ndarray
 
@@ -54,36 +54,26 @@ def calibrate(
     from stereogeo_cli.io import load_image
     from stereogeo_cli.io.exif import exif_focals
 
-    for name, value in (("baseline", baseline), ("focal_left", focal_left), ("focal_right", focal_right)):
-        if value is not None and not (value > 0 and np.isfinite(value)):
-            raise StereoGeoError(f"{name} must be a positive number, got {value}")
-    if focal_sigma is not None:
-        if not 0 < focal_sigma < 1:
-            raise StereoGeoError(f"focal sigma must be a fraction between 0 and 1, got {focal_sigma}")
-        if focal_left is None and focal_right is None:
-            raise StereoGeoError("a focal sigma needs a left or right focal length")
-    if rotate not in TURNS_DEG:
-        raise StereoGeoError(f"rotate must be 0, 90, 180 or 270 degrees, got {rotate}")
+    options = PairOptions(
+        baseline, focal_left, focal_right, focal_sigma, pinhole=pinhole, lines=lines, exif=exif, rotate=rotate
+    ).checked(API_NAMES)
     images = [image if isinstance(image, np.ndarray) else load_image(image) for image in (left, right)]
     paths = [None if isinstance(image, np.ndarray) else Path(image) for image in (left, right)]
     if calibrator is None:
-        conf = calibrator_conf(pinhole, lines)
-        if focal_sigma is not None:
-            conf["known_focal_sigma"] = focal_sigma
         # the pair's image work starts while the network's session opens
         first = None if rotate else (images[0], images[1])  # the turned pair's work starts in calibrate
-        calibrator = Calibrator(model, threads=threads, conf=conf, first_pair=first)
+        calibrator = Calibrator(model, threads=threads, conf=options.calibrator_conf(), first_pair=first)
     elif focal_sigma is not None:
         raise StereoGeoError("give focal_sigma in the calibrator's conf (known_focal_sigma) when reusing one")
     found = None
-    if exif and None not in paths:
+    if options.exif and None not in paths:
         found = exif_focals(paths, images)
     return calibrator.calibrate(
         images[0],
         images[1],
-        baseline_m=baseline,
-        focal_left=focal_left,
-        focal_right=focal_right,
+        baseline_m=options.baseline_m,
+        focal_left=options.focal_left,
+        focal_right=options.focal_right,
         exif=found,
-        rotate=rotate,
+        rotate=options.rotate,
     )

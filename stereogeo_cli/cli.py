@@ -251,6 +251,12 @@ _MakeDataProgress = Annotated[
 ]
 
 
+_MakeDataRate = Annotated[
+    float | None,
+    typer.Option(metavar="HZ", help="Sequences: the frame rate; the motion spans (n − 1) / HZ seconds."),
+]
+
+
 @app.command("make-data")
 def make_data(
     out: _MakeDataOut = None,
@@ -285,50 +291,41 @@ def make_data(
     exposure_changes: _MakeDataExposureChanges = 0.0,
     motion_blur: _MakeDataMotionBlur = 0.0,
     moving_objects: _MakeDataMovingObjects = 0,
+    rate: _MakeDataRate = None,
     progress: _MakeDataProgress = None,
 ) -> None:
     """Render a synthetic stereo dataset with exact ground truth (K, R, T, gravity per camera), or with
     --sequence one sequence of a moving rig (K, R, T and the pose of every frame)."""
     require_training_extra("make-data")
     if photos is not None:
-        from stereogeo_cli.io.text import plural
-        from stereogeo_cli.synth.photos import make_photo_pairs
-
-        if out is None:
-            raise StereoGeoError("give the dataset folder to write the photographs' pairs into")
-        if photo_split not in ("train", "all"):
-            raise StereoGeoError(f"--photo-split must be train or all, not {photo_split!r}")
-        written = make_photo_pairs(photos, out, None if photo_split == "all" else photo_split)
-        typer.echo(f"wrote {plural(written, 'pair')} to {out}")
-        return
+        return _make_photo_pairs(photos, out, photo_split)
     from stereogeo_cli.synth.cli_support import run_make_data
 
     run_make_data(
-        out,
-        count=count,
-        seed=seed,
-        sequence=sequence,
-        workers=workers,
-        size=size,
-        aspects=aspects,
-        portrait_share=portrait_share,
-        vfov=(vfov_min, vfov_max),
-        baseline=(baseline_min, baseline_max),
-        max_angle=max_angle,
-        outdoor_share=outdoor_share,
-        close_share=close_share,
-        panorama_share=panorama_share,
-        panorama_max_upsampling=panorama_max_upsampling,
-        augment=augment,
-        depth=depth,
-        textures=textures,
-        panoramas=panoramas,
-        preview=preview,
-        progress=sys.stderr.isatty() if progress is None else progress,
+        out, count=count, seed=seed, sequence=sequence, workers=workers, size=size, aspects=aspects,
+        portrait_share=portrait_share, vfov=(vfov_min, vfov_max), baseline=(baseline_min, baseline_max),
+        max_angle=max_angle, outdoor_share=outdoor_share, close_share=close_share,
+        panorama_share=panorama_share, panorama_max_upsampling=panorama_max_upsampling, augment=augment,
+        depth=depth, textures=textures,
+        panoramas=panoramas, preview=preview, progress=sys.stderr.isatty() if progress is None else progress,
         effects={"principal_offset": principal_offset, "focal_aspect": focal_aspect, "h264": h264,
                  "keep_video": keep_video, "exposure_changes": exposure_changes, "motion_blur": motion_blur,
                  "moving_objects": moving_objects},
+        rate=rate,
     )  # fmt: skip
+
+
+def _make_photo_pairs(photos: Path, out: Path | None, photo_split: str) -> None:
+    """``make-data --photos``: pairs cut from real photographs (``synth/photos.py``)."""
+    from stereogeo_cli.io.text import plural
+    from stereogeo_cli.synth.photos import make_photo_pairs
+
+    if out is None:
+        raise StereoGeoError("give the dataset folder to write the photographs' pairs into")
+    if photo_split not in ("train", "all"):
+        raise StereoGeoError(f"--photo-split must be train or all, not {photo_split!r}")
+    written = make_photo_pairs(photos, out, None if photo_split == "all" else photo_split)
+    typer.echo(f"wrote {plural(written, 'pair')} to {out}")
 
 
 def _internal(error: BaseException) -> typer.Exit:
@@ -494,13 +491,6 @@ RotateOption = Annotated[
 ]  # calibrate, batch-calibrate and calibrate-sequence
 
 
-def _check_rotate(rotate: int) -> None:
-    from stereogeo_cli.geometry import TURNS_DEG
-
-    if rotate not in TURNS_DEG:
-        raise StereoGeoError(f"--rotate must be 0, 90, 180 or 270, got {rotate}")
-
-
 ExifFlag = Annotated[
     bool,
     typer.Option(
@@ -558,8 +548,12 @@ def calibrate(
     threads: Annotated[int, typer.Option(help="Threads for the network (0: one per core but one).")] = 0,
 ) -> None:
     """Calibrate a stereo camera from one image pair: focal lengths, gravity (roll, pitch), R and T."""
-    _check_calibrate_options(baseline, focal_left, focal_right, focal_sigma, threads)
-    _check_rotate(rotate)
+    from stereogeo_cli.options import PairOptions
+
+    options = PairOptions(
+        baseline, focal_left, focal_right, focal_sigma, pinhole=pinhole, lines=lines, exif=exif, rotate=rotate
+    ).checked()
+    _check_threads(threads)
     names = _formats(formats)
     if output is not None:
         _check_output_folder(output)
@@ -568,11 +562,7 @@ def calibrate(
     from stereogeo_cli.api import calibrate as calibrate_pair
     from stereogeo_cli.io import load_image, write_calibration
 
-    result = calibrate_pair(
-        left, right, baseline=baseline, focal_left=focal_left, focal_right=focal_right,
-        focal_sigma=focal_sigma, pinhole=pinhole, lines=lines, exif=exif, rotate=rotate, model=model,
-        threads=threads,
-    )  # fmt: skip
+    result = calibrate_pair(left, right, **options.api_keywords(), model=model, threads=threads)
     report_wanted = output is not None and "html" in names
     images = (load_image(left), load_image(right)) if preview is not None or report_wanted else None
     written = []
@@ -599,20 +589,7 @@ def calibrate(
     _print_written(console, written)
 
 
-def _check_calibrate_options(baseline, focal_left, focal_right, focal_sigma, threads) -> None:
-    """``calibrate``'s numbers, checked before any work: a bad one is a usage error (exit code 2)."""
-    for name, value in (
-        ("--baseline", baseline),
-        ("--focal-left", focal_left),
-        ("--focal-right", focal_right),
-    ):
-        if value is not None and not (value > 0 and np.isfinite(value)):
-            raise StereoGeoError(f"{name} must be a positive number, got {value}")
-    if focal_sigma is not None:
-        if not (0 < focal_sigma < 1):
-            raise StereoGeoError(f"--focal-sigma must be a fraction between 0 and 1, got {focal_sigma}")
-        if focal_left is None and focal_right is None:
-            raise StereoGeoError("--focal-sigma needs --focal-left or --focal-right")
+def _check_threads(threads: int) -> None:
     if threads < 0:
         raise StereoGeoError("--threads must be 0 or more")
 
@@ -694,11 +671,11 @@ def batch_calibrate(
 
     Ctrl-C (or SIGTERM) stops after the pairs in flight and writes the summaries (exit code 130, or 143);
     --resume continues."""
-    if baseline is not None and not (baseline > 0 and np.isfinite(baseline)):
-        raise StereoGeoError(f"--baseline must be a positive number, got {baseline}")
+    from stereogeo_cli.options import PairOptions
+
+    pair = PairOptions(baseline, pinhole=pinhole, lines=lines, exif=exif, rotate=rotate).checked()
     if threads < 0 or workers < 1:
         raise StereoGeoError("--threads must be 0 or more and --workers 1 or more")
-    _check_rotate(rotate)
     from stereogeo_cli.batch import BatchOptions, run_batch
     from stereogeo_cli.io.pairs import parse_shard
     from stereogeo_cli.io.text import plural
@@ -709,9 +686,8 @@ def batch_calibrate(
     notice = "{name}: stopping after the pairs in flight (again: at once), then writing the summaries"
     with interruptible(notice=notice) as stop:
         options = BatchOptions(
-            formats=names, baseline_m=baseline, model=model, threads=threads, workers=workers,
-            same_rig=same_rig, shard=shard_spec, progress=sys.stderr.isatty(), pinhole=pinhole, lines=lines,
-            exif=exif, rotate=rotate, resume=resume, overwrite=overwrite,
+            formats=names, pair=pair, model=model, threads=threads, workers=workers, same_rig=same_rig,
+            shard=shard_spec, progress=sys.stderr.isatty(), resume=resume, overwrite=overwrite,
         )  # fmt: skip
         summary = run_batch(folder, output, options, stop)
     total, left = len(summary.outcomes), summary.not_run
@@ -888,15 +864,24 @@ def calibrate_sequence(
     # the handlers are in place from the start, so that a signal at any moment ends the run the same way
     notice = "{name}: stopping after the stage in flight, nothing is written; {name} again to stop at once"
     stage = StageProgress("off" if not progress else "bar" if sys.stderr.isatty() else "log")
+    from stereogeo_cli.options import PairOptions
+    from stereogeo_cli.sequence.options import SequenceOptions
+
+    if threads < 0:
+        raise StereoGeoError("--threads must be 0 or more")
+    options = SequenceOptions(
+        video=video, sbs=sbs, left_topic=left_topic, right_topic=right_topic,
+        stamp_tolerance_s=stamp_tolerance, every=every, fps=fps, max_frames=max_frames, keyframes=keyframes,
+        max_keyframes=max_keyframes, pair=PairOptions(baseline, pinhole=pinhole, rotate=rotate),
+        workspace=workspace,
+    ).checked()  # fmt: skip
+    names = _formats(formats)
     with interruptible(notice=notice if sys.stderr.isatty() else None) as stop:
         try:
             with stage:
                 written, result = _run_sequence(
-                    stop, stage, source, output=output, video=video, sbs=sbs, left_topic=left_topic,
-                    right_topic=right_topic, every=every, fps=fps, max_frames=max_frames,
-                    keyframes=(keyframes, max_keyframes), formats=formats,
-                    overwrite=overwrite, baseline=baseline, pinhole=pinhole, rotate=rotate,
-                    stamp_tolerance=stamp_tolerance, workspace=workspace, model=model, threads=threads,
+                    stop, stage, source, options, output=output, formats=names, overwrite=overwrite,
+                    model=model, threads=threads,
                 )  # fmt: skip
                 if stop.requested:
                     stage.stopped()
@@ -930,59 +915,34 @@ def _ignore_signals_from_now() -> None:
         signal.signal(s, signal.SIG_IGN)
 
 
-def _run_sequence(stop, stage, source, *, output, video, sbs, left_topic, right_topic, every, fps, max_frames,
-                  keyframes, formats, overwrite, baseline, pinhole, rotate, stamp_tolerance, workspace, model,
-                  threads) -> tuple[list[Path], object]:  # fmt: skip
-    """``calibrate-sequence``'s work: the options checked, the source opened, the rig calibrated and its
-    files written; ([], None) where ``stop`` came first."""
-    _check_calibrate_options(baseline, None, None, None, threads)
-    _check_rotate(rotate)
-    for name, value in (("--every", every), ("--max-frames", max_frames), ("--max-keyframes", keyframes[1])):
-        if value is not None and value < 1:
-            raise StereoGeoError(f"{name} must be at least 1, got {value}")
-    if fps is not None and not (math.isfinite(fps) and fps > 0):
-        raise StereoGeoError(f"--fps must be a positive number of frames per second, got {fps}")
-    if workspace is not None and workspace.exists() and not workspace.is_dir():
-        raise StereoGeoError(f"--workspace {workspace} is a file, not a folder")
-    names = _formats(formats)
+def _run_sequence(stop, stage, source, options, *, output, formats, overwrite, model, threads):
+    """``calibrate-sequence``'s work: the source opened, the rig calibrated and its files written; ([], None)
+    where ``stop`` came first."""
     from stereogeo_cli.sequence.run import check_output_folder, write_sequence
 
     if output is not None:
         _check_output_folder(output)
         check_output_folder(output, overwrite)
-    from stereogeo_cli.pipeline import Calibrator, calibrator_conf
+    from stereogeo_cli.pipeline import Calibrator
     from stereogeo_cli.sequence.run import calibrate_sequence as run_sequence
-    from stereogeo_cli.sequence.sources import open_source
 
     stage(0, None, "opening the source")
-    frames = open_source(
-        source, video=video, sbs=sbs, left_topic=left_topic, right_topic=right_topic,
-        every=1 if every is None else every, fps=fps, max_frames=max_frames, tolerance_s=stamp_tolerance,
-    )  # fmt: skip
+    frames = options.open(source)
     if stop.requested:
         return [], None
-    if keyframes[0] and every is None and max_frames is None and (fps is None or _is_folder(frames)):
-        frames = _keyframes(frames, keyframes[1], stage, stop)
+    if options.chooses_keyframes(frames):
+        frames = _keyframes(frames, options.max_keyframes, stage, stop)
         if stop.requested:
             return [], None
     stage(0, None, "loading the network")
-    calibrator = Calibrator(model, threads=threads, conf=calibrator_conf(pinhole))
-    result = run_sequence(
-        frames, calibrator, baseline_m=baseline, pinhole=pinhole, workspace=workspace, progress=stage,
-        stop=stop, rotate=rotate,
-    )  # fmt: skip
+    calibrator = Calibrator(model, threads=threads, conf=options.pair.calibrator_conf())
+    result = run_sequence(frames, calibrator, options, progress=stage, stop=stop)
     if result is None or stop.requested:
         return [], None
     if output is None:
         return [], result
     stage(0, None, "writing the results")
-    return write_sequence(output, result, names, overwrite=overwrite, stop=stop), result
-
-
-def _is_folder(frames) -> bool:
-    from stereogeo_cli.sequence.sources import FolderSource
-
-    return isinstance(frames, FolderSource)  # a folder's --fps sets its times and chooses no frame
+    return write_sequence(output, result, formats, overwrite=overwrite, stop=stop), result
 
 
 def _keyframes(frames, max_kept: int, stage, stop):

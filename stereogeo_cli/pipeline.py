@@ -324,16 +324,6 @@ def hold_alike_focals(
     )
 
 
-def calibrator_conf(pinhole: bool, lines: bool = True) -> dict:
-    """The Calibrator settings of ``--pinhole`` (no lens distortion fitted) and ``--no-lines`` (gravity and
-    focal length from the fields alone: neither vertical segments nor vanishing points)."""
-    conf: dict = {"fuse": {"distortion": False}} if pinhole else {}
-    if not lines:
-        conf["lines"] = {"enabled": False}
-        conf["manhattan"] = {"enabled": False}
-    return conf
-
-
 @dataclass
 class _PairWork:
     """What one pair's calibration carries from stage to stage; lists are per camera (left, right)."""

@@ -23,11 +23,17 @@ from stereogeo_cli.batch.resume import EVIDENCE, MARKER, evidence_bytes, existin
 from stereogeo_cli.batch.same_rig import pool_matches
 from stereogeo_cli.errors import StereoGeoError
 from stereogeo_cli.fuse import Matches, fuse_relative_pose
+from stereogeo_cli.fuse.assemble import CameraEstimate
 from stereogeo_cli.geometry import intrinsic_matrix, rotation_angle, rotation_error, rotation_from_axis_angle
 from stereogeo_cli.io.pairs import discover_pairs, parse_shard, select_shard
 from stereogeo_cli.jobs.interrupt import Interrupted, Stop, interruptible, protected
 from stereogeo_cli.rig.combine import chordal_mean, combine_focals
 from stereogeo_cli.rig.evidence import PairEvidence
+
+
+def _cameras(size: tuple[int, int], focals: tuple[float, float], k: float = 0.0) -> tuple:
+    """A pair's two cameras as its evidence holds them (no gravity, a focal sigma of 1 px, division k)."""
+    return tuple(CameraEstimate(f, *size, None, {"focal_px": 1.0}, division_k=k) for f in focals)
 
 
 def touch(folder: Path, *names: str) -> None:
@@ -398,8 +404,8 @@ def test_pooled_matches_give_a_better_pose_than_single_pairs():
         pose = fuse_relative_pose(m, K_left, K_right)
         single.append(np.degrees(rotation_error(pose.R, R)))
         single_t.append(direction_error(pose.t_direction))
-        evidence.append(PairEvidence((640, 480), (640, 480), (500.0, 520.0), (1.0, 1.0), None, None, pose.R,
-                                    pose.t_direction, pose.source, 0.12, m.left, m.right))  # fmt: skip
+        evidence.append(PairEvidence(_cameras((640, 480), (500.0, 520.0)), pose.R, pose.t_direction,
+                                     pose.source, 0.12, m.left, m.right))  # fmt: skip
     pooled, counts = pool_matches(evidence, K_left, K_right)
     assert len(pooled) == sum(counts) and min(counts) > 30
     t_mean = np.sum([e.t_direction for e in evidence], axis=0)
@@ -433,8 +439,8 @@ def test_pooling_judges_each_pair_after_undoing_its_lens():
     np.testing.assert_allclose(undistort_division(seen.left, K, -0.2), m.left, atol=1e-9)
 
     def evidence(k):
-        return PairEvidence((640, 480), (640, 480), (500.0, 500.0), (1.0, 1.0), None, None, R, T / 0.3,
-                           "matches", 0.3, seen.left, seen.right, distortion=(k, k))  # fmt: skip
+        return PairEvidence(_cameras((640, 480), (500.0, 500.0), k), R, T / 0.3, "matches", 0.3, seen.left,
+                            seen.right)  # fmt: skip
 
     pooled, (kept,) = pool_matches([evidence(-0.2)], K, K)
     assert kept == len(seen)
@@ -466,8 +472,8 @@ def test_pooling_real_pairs_of_one_rig(shared_data):
         pose = fuse_relative_pose(m, *K, conf=PINHOLE)  # undistorted with the true lens already
         R_true = np.array(calib["R"])
         single.append(np.degrees(rotation_error(pose.R, R_true)))
-        evidence.append(PairEvidence((752, 480), (752, 480), (0.0, 0.0), (1.0, 1.0), None, None, pose.R,
-                                    pose.t_direction, pose.source, 0.11, m.left, m.right))  # fmt: skip
+        evidence.append(PairEvidence(_cameras((752, 480), (0.0, 0.0)), pose.R, pose.t_direction, pose.source,
+                                     0.11, m.left, m.right))  # fmt: skip
     pooled, _ = pool_matches(evidence, *K)
     t_mean = np.sum([e.t_direction for e in evidence], axis=0)
     joint = fuse_relative_pose(
@@ -566,20 +572,30 @@ def test_first_signal_asks_to_stop_a_second_stops_at_once_and_handlers_come_back
 
 def test_same_rig_evidence_is_kept_exactly():
     rng = np.random.default_rng(1)
+    cameras = (
+        CameraEstimate(500.123456789, 640, 480, rng.normal(size=3), {"focal_px": 12.25, "gravity_deg": 0.5},
+                       division_k=-0.1, focal_prior=(600.0, 30.5)),
+        CameraEstimate(510.5, 320, 240, rng.normal(size=3), {"focal_px": float("inf"), "gravity_deg": 1.5}),
+    )  # fmt: skip
     ev = PairEvidence(
-        (640, 480), (320, 240), (500.123456789, 510.5), (12.25, float("inf")), rng.normal(size=3),
-        rng.normal(size=3), rotation_from_axis_angle(rng.normal(size=3)), rng.normal(size=3), "matches",
-        0.1234567, rng.normal(size=(7, 2)) * 100, rng.normal(size=(7, 2)) * 100, distortion=(-0.1, 0.0),
-        focal_prior=((600.0, 30.5), None),
+        cameras, rotation_from_axis_angle(rng.normal(size=3)), rng.normal(size=3), "matches", 0.1234567,
+        rng.normal(size=(7, 2)) * 100, rng.normal(size=(7, 2)) * 100, sigma_baseline_rel=0.02, lens=True,
     )  # fmt: skip
     back = read_evidence(evidence_bytes(ev))
-    for name, value in vars(ev).items():
-        kept = getattr(back, name)
+
+    def same(value, kept, name):
         if isinstance(value, np.ndarray):
             assert kept.dtype == np.float64 and np.array_equal(kept, value), name
         else:
             assert kept == value and type(kept) is type(value), name
-    assert isinstance(back.size_left[0], int) and back.focal_prior[1] is None
+
+    for name, value in vars(ev).items():
+        if name != "cameras":
+            same(value, getattr(back, name), name)
+    for camera, kept in zip(ev.cameras, back.cameras, strict=True):
+        for name, value in vars(camera).items():
+            same(value, getattr(kept, name), name)
+    assert back.cameras[1].focal_prior is None
 
 
 def test_existing_results_are_the_pairs_own(tmp_path):

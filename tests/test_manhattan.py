@@ -181,6 +181,7 @@ def test_same_rig_counts_an_edge_combined_focal_length_as_the_pairs_own_evidence
     result = Calibrator(threads=2).calibrate(left, right)
     assert all(entry["source"] == "lines" for entry in result.report()["focal_prior"])
     evidence = PairEvidence.from_result(result)
-    assert evidence.focal_prior == (None, None)
-    assert evidence.focal == (result.left.focal_px, result.right.focal_px)
-    assert evidence.focal_sigma == (result.left.sigma["focal_px"], result.right.sigma["focal_px"])
+    assert [c.focal_prior for c in evidence.cameras] == [None, None]
+    assert [c.focal_px for c in evidence.cameras] == [result.left.focal_px, result.right.focal_px]
+    fits = result.left, result.right
+    assert [c.sigma["focal_px"] for c in evidence.cameras] == [f.sigma["focal_px"] for f in fits]

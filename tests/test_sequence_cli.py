@@ -309,7 +309,9 @@ def test_a_bag_without_the_topic_is_one_line_and_exit_2(tmp_path):
 # ------------------------------------------------------------------------------ signals, reruns, progress
 
 # a stage's log line on stderr where it is no terminal: "COLMAP: mapping: 3.4 s", "reading …, 5 of 16: …"
-STAGE_LINE = re.compile(r"^[^:]+(: [^:]+)?(, \d+ of \d+)?: (stopped after )?\d+\.\d s$")
+STAGE_LINE = re.compile(
+    r"^[^:]+(: [^:]+)?(, \d+ of \d+)?: (stopped after )?\d+\.\d s(; about [^;]+ left in all)?$"
+)  # and the whole run's time left, where it is known
 
 
 class _Running:
@@ -405,8 +407,10 @@ def test_a_rerun_into_a_used_folder_is_refused_and_overwrite_replaces_it_whole(t
         "reading and calibrating frame pairs, 16 of 16",
     ]  # fmt: skip
     assert [s.split(":")[0] for s in stages][:4] == first
-    assert any(s.startswith("COLMAP: mapping: ") for s in stages)
+    assert any(s.startswith("COLMAP: mapping (16 of 16 frames registered): ") for s in stages)
     assert any(s.startswith("writing the results: ") for s in stages)
+    # the time left follows each stage from the reading of the frames on, the last one aside
+    assert all("left in all" in s for s in stages[3:-2]), stages
 
     (out / "notes.txt").write_text("mine")  # not a sequence's: --overwrite does not delete it
     done = _stereogeo("calibrate-sequence", folder, "-o", out, "--overwrite", check=False)
@@ -513,3 +517,29 @@ def test_a_stage_line_fits_a_narrow_terminal_and_each_stage_shows_its_time(capsy
     err = capsys.readouterr().err.splitlines()
     assert [STAGE_LINE.match(line) is not None for line in err] == [True, True]
     assert err[0].startswith("reading frames, 3 of 3: ") and err[1].startswith("COLMAP: mapping: ")
+
+
+def test_the_time_left_follows_the_pace_of_the_stages_done(monkeypatch, capsys):
+    """The whole run's time left: the stages to come as expected, scaled by how the stages done went (here
+    1.6 times slower than expected), less what the stage in flight has run; each log line ends with it."""
+    from stereogeo_cli.jobs import progress as progress_module
+
+    now = [0.0]
+    monkeypatch.setattr(progress_module.time, "perf_counter", lambda: now[0])
+    log = progress_module.StageProgress("log")
+    with log:
+        log.expect({"reading": 10.0, "mapping": 30.0, "adjusting": 20.0})
+        assert log.time_left() == 60.0  # nothing done yet: as expected
+        log(0, 4, "reading")
+        now[0] = 16.0  # the reading took 1.6 times as long as expected
+        log(4, 4)
+        log(0, None, "mapping")
+        assert log.time_left() == pytest.approx(1.6 * (30.0 + 20.0))
+        now[0] = 40.0  # 24 s into the mapping: 15 s of its 30 expected at this pace
+        assert log.time_left() == pytest.approx(1.6 * (15.0 + 20.0))
+        log(0, None, "adjusting")
+    err = capsys.readouterr().err.splitlines()
+    assert [STAGE_LINE.match(line) is not None for line in err] == [True, True, True]
+    # the mapping ended in 24 s: the two stages done took 40 s for 40 expected
+    assert err[0].endswith("; about 80 s left in all") and err[1].endswith("; about 20 s left in all")
+    assert "left" not in err[2]  # the last stage: nothing left

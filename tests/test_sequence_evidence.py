@@ -4,15 +4,17 @@ attitude, and the trajectory file, on exact synthetic inputs."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from stereogeo_cli.fuse.assemble import CameraEstimate
 from stereogeo_cli.geometry import gravity_from_roll_pitch, quaternion_to_rotation, rotation_from_axis_angle
+from stereogeo_cli.rig.combine import FocalEstimate
 from stereogeo_cli.rig.evidence import EMPTY, PairEvidence
-from stereogeo_cli.sequence.colmap import AdjustedCamera, cam_from_new_world
+from stereogeo_cli.sequence.colmap import cam_from_new_world
 from stereogeo_cli.sequence.evidence import (
-    FocalEvidence,
     combine_adjusted_focal,
     frame_attitudes,
     world_up,
@@ -20,9 +22,14 @@ from stereogeo_cli.sequence.evidence import (
 from stereogeo_cli.sequence.run import trajectory_tum
 
 
+def adjusted(focal_px: float, sigma_px: float) -> CameraEstimate:
+    """A camera as an adjustment gives it: its focal length and the cost profile's 1-sigma (pixels)."""
+    return CameraEstimate(focal_px, 640, 480, None, {"focal_px": sigma_px})
+
+
 def test_a_sharp_adjustment_carries_the_focal_length_and_is_called_observable():
-    pairs = FocalEvidence(400.0, 80.0)  # 20 %: a network's read of a real camera
-    sharp = combine_adjusted_focal(AdjustedCamera(500.0, 0.5), pairs, rotation_span_deg=40.0)
+    pairs = FocalEstimate(400.0, 80.0)  # 20 %: a network's read of a real camera
+    sharp = combine_adjusted_focal(adjusted(500.0, 0.5), pairs, rotation_span_deg=40.0)
     assert sharp.observable
     assert sharp.adjustment_weight > 0.98
     assert sharp.focal_px == pytest.approx(500.0, rel=0.01)
@@ -31,19 +38,19 @@ def test_a_sharp_adjustment_carries_the_focal_length_and_is_called_observable():
 
 
 def test_a_free_focal_length_falls_back_to_the_pairs_with_their_sigma():
-    pairs = FocalEvidence(400.0, 80.0)
-    free = combine_adjusted_focal(AdjustedCamera(650.0, 650.0 * 3.0), pairs, 40.0)  # the cost barely rose
+    pairs = FocalEstimate(400.0, 80.0)
+    free = combine_adjusted_focal(adjusted(650.0, 650.0 * 3.0), pairs, 40.0)  # the cost barely rose
     assert not free.observable
     assert free.adjustment_weight < 0.01
     assert free.focal_px == pytest.approx(400.0, rel=0.01)
     assert free.sigma_px == pytest.approx(80.0, rel=0.01)
-    none = combine_adjusted_focal(AdjustedCamera(650.0, math.inf), pairs, 40.0)
+    none = combine_adjusted_focal(adjusted(650.0, math.inf), pairs, 40.0)
     assert none.focal_px == pytest.approx(400.0) and not none.observable
 
 
 def test_without_rotation_a_sharp_adjustment_is_used_but_not_called_observable():
-    pairs = FocalEvidence(480.0, 96.0)
-    straight = combine_adjusted_focal(AdjustedCamera(500.0, 0.5), pairs, rotation_span_deg=0.8)
+    pairs = FocalEstimate(480.0, 96.0)
+    straight = combine_adjusted_focal(adjusted(500.0, 0.5), pairs, rotation_span_deg=0.8)
     assert not straight.observable
     assert straight.focal_px == pytest.approx(500.0, rel=0.01)
 
@@ -51,21 +58,21 @@ def test_without_rotation_a_sharp_adjustment_is_used_but_not_called_observable()
 def test_a_rig_standing_still_keeps_the_pairs_focal_length_and_sigma():
     """Not turned and not moved: the frames show what one pair shows, and the adjustment's sharp focal
     length (tied by the rig's own left-right rotation alone) is left out; a rig that moved is adjusted."""
-    pairs = FocalEvidence(480.0, 96.0)
-    still = combine_adjusted_focal(AdjustedCamera(420.0, 0.5), pairs, 0.0, travel_baselines=0.01)
+    pairs = FocalEstimate(480.0, 96.0)
+    still = combine_adjusted_focal(adjusted(420.0, 0.5), pairs, 0.0, travel_baselines=0.01)
     assert still.adjustment_weight == 0.0 and not still.observable
     assert still.focal_px == pytest.approx(480.0) and still.sigma_px == pytest.approx(96.0)
     assert still.adjusted.focal_px == 420.0  # still reported
-    drove = combine_adjusted_focal(AdjustedCamera(420.0, 0.5), pairs, 0.0, travel_baselines=20.0)
+    drove = combine_adjusted_focal(adjusted(420.0, 0.5), pairs, 0.0, travel_baselines=20.0)
     assert drove.adjustment_weight > 0.9
 
 
 def test_a_pairs_reading_far_from_a_sharp_adjustment_is_left_out():
     # a car camera read as 313 px for 707: the adjustment's 690 ± 2 % is the measurement
-    far = combine_adjusted_focal(AdjustedCamera(690.0, 1.0), FocalEvidence(313.0, 78.0), 2.0)
+    far = combine_adjusted_focal(adjusted(690.0, 1.0), FocalEstimate(313.0, 78.0), 2.0)
     assert far.pairs_left_out and far.adjustment_weight == 1.0
     assert far.focal_px == pytest.approx(690.0)
-    near = combine_adjusted_focal(AdjustedCamera(690.0, 1.0), FocalEvidence(600.0, 150.0), 2.0)
+    near = combine_adjusted_focal(adjusted(690.0, 1.0), FocalEstimate(600.0, 150.0), 2.0)
     assert not near.pairs_left_out and near.focal_px < 690.0
 
 
@@ -85,11 +92,12 @@ def _readings_and_poses(up_world, count=30, noise_deg=1.0, seed=0):
         for g in (truth_left, R_rig @ truth_left):
             noisy = g + rng.normal(0, math.radians(noise_deg), 3)
             gravity.append(noisy / np.linalg.norm(noisy))
+        cameras = tuple(
+            CameraEstimate(500.0, 640, 480, g, {"focal_px": 50.0, "gravity_deg": noise_deg}) for g in gravity
+        )
         readings[i] = PairEvidence(
-            (640, 480), (640, 480), (500.0, 500.0), (50.0, 50.0), gravity[0], gravity[1], R_rig,
-            np.array([-1.0, 0, 0]), "matches", 0.1, EMPTY, EMPTY, sigma_gravity_deg=(noise_deg, noise_deg),
-            sigma_baseline_rel=0.5,
-        )  # fmt: skip
+            cameras, R_rig, np.array([-1.0, 0, 0]), "matches", 0.1, EMPTY, EMPTY, sigma_baseline_rel=0.5
+        )
     return readings, poses, R_rig
 
 
@@ -109,7 +117,8 @@ def test_world_up_averages_the_frames_and_its_sigma_covers_the_error():
 def test_world_up_leaves_out_a_reading_far_off():
     up = np.array([0.0, -1.0, 0.0])
     readings, poses, R_rig = _readings_and_poses(up, noise_deg=0.5)
-    readings[3].gravity_left = np.array([1.0, 0.0, 0.0])  # a 90° blunder
+    blunder = replace(readings[3].cameras[0], gravity_up=np.array([1.0, 0.0, 0.0]))  # 90° off
+    readings[3].cameras = (blunder, readings[3].cameras[1])
     found, _, used = world_up(readings, poses, R_rig)
     assert used == 59
     assert math.degrees(math.acos(np.clip(found @ up, -1, 1))) < 0.5

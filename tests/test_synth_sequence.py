@@ -231,3 +231,49 @@ def test_cli_writes_a_sequence_and_refuses_bad_requests(tmp_path):
         assert result.exit_code == 2, (bad, result.output)
         assert "Traceback" not in result.output
     assert (tmp_path / "other" / "notes.txt").read_text() == "mine"
+
+
+def test_rate_sets_the_frame_times_and_keeps_a_turns_shape(tmp_path):
+    """--rate HZ: frames 1/HZ apart (calib.json and the H.264 videos), the turn shaped over the sequence as
+    without it; a rate ≤ 0, or one for pairs, is refused in one line."""
+    import av
+
+    runner = CliRunner()
+    base = ["--sequence", "turning", "-n", "3", "--size", "96", "--no-progress"]
+    for name, extra in (("plain", []), ("rated", ["--rate", "30", "--h264", "200", "--keep-video"])):
+        result = runner.invoke(app, ["make-data", str(tmp_path / name), *base, *extra])
+        assert result.exit_code == 0, result.output
+    plain, rated = (json.loads((tmp_path / n / "calib.json").read_text()) for n in ("plain", "rated"))
+    np.testing.assert_allclose(np.diff(rated["timestamps"]), 1 / 30, rtol=1e-12)
+    assert rated["timestamps"][0] == 0.0
+    assert rated["extra"]["rate_hz"] == 30.0 and rated["extra"]["duration_s"] == pytest.approx(2 / 30)
+    assert plain["extra"]["rate_hz"] == pytest.approx(2 / 6.0)  # the turn's own 6 s without --rate
+    np.testing.assert_allclose(rated["gt_poses"], plain["gt_poses"], atol=1e-12)  # same turn, faster
+    with av.open(str(tmp_path / "rated" / "left.mp4")) as video:
+        assert video.streams.video[0].average_rate == 30
+    for bad in (["--rate", "0"], ["--rate", "-5"]):
+        result = runner.invoke(app, ["make-data", str(tmp_path / "bad"), *base, *bad])
+        assert result.exit_code == 2, result.output
+        assert "--rate must be > 0" in result.output and "Traceback" not in result.output
+    result = runner.invoke(app, ["make-data", str(tmp_path / "pairs"), "-n", "2", "--rate", "30"])
+    assert result.exit_code == 2 and "--rate" in result.output, result.output
+    assert not (tmp_path / "bad").exists()
+
+
+def test_rate_lets_a_handheld_sweep_run_in_seconds():
+    """A hand-held sweep's sinusoids are in seconds: at a rate its time, not its shape over u, is kept, and
+    its peak stays within the drawn amplitude over a longer sequence."""
+    from stereogeo_cli.synth.sequence import sample_motion
+
+    short = sample_motion(np.random.default_rng(7), "handheld", False)
+    long = sample_motion(np.random.default_rng(7), "handheld", False, duration=50.0)
+    t = np.linspace(0.0, 5.0, 101)
+    xyz_short = short.at(t / 5.0)[0]
+    xyz_long = long.at(t / 50.0)[0]
+    # the same sinusoids at the same seconds, scaled by their peak over 5 s and over 50 s
+    peaks = np.array([[m.params[k]["peak"] for k in ("x", "y", "z")] for m in (short, long)])
+    assert np.all(peaks[1] >= peaks[0])
+    np.testing.assert_allclose(xyz_long, xyz_short * peaks[0] / peaks[1], rtol=1e-9, atol=1e-15)
+    full = long.at(np.linspace(0.0, 1.0, 4001))[0]
+    amplitude = [long.params[k]["amplitude"] for k in ("x", "y", "z")]
+    assert np.all(np.abs(full).max(axis=0) <= np.array(amplitude) * (1 + 1e-3))

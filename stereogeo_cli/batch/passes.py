@@ -25,17 +25,18 @@ from stereogeo_cli.jobs.interrupt import (
     worker_ignores_signals,
 )
 from stereogeo_cli.jobs.progress import PairProgress
-from stereogeo_cli.pipeline import calibrator_conf, usable_cores
+from stereogeo_cli.pipeline import usable_cores
 from stereogeo_cli.rig.evidence import PairEvidence
 
 
 def load_entry(entry: PairEntry, job: PairJob) -> tuple[np.ndarray, np.ndarray, tuple | None]:
-    """A pair's images (checked as a pair) and, if ``job.exif``, what their EXIF says of the focal length."""
+    """A pair's images (checked as a pair) and, if ``job.pair.exif``, what their EXIF says of the focal
+    length."""
     from stereogeo_cli.io import load_pair
     from stereogeo_cli.io.exif import exif_focals
 
     left, right = load_pair(entry.left, entry.right)
-    return left, right, exif_focals((entry.left, entry.right), (left, right)) if job.exif else None
+    return left, right, exif_focals((entry.left, entry.right), (left, right)) if job.pair.exif else None
 
 
 def calibrate_pair(
@@ -51,15 +52,13 @@ def calibrate_pair(
     try:
         left, right, exif = loading.result() if loading is not None else load_entry(entry, job)
         result = calibrator.calibrate(
-            left, right, baseline_m=job.baseline_m, focal_left=job.focal_left, focal_right=job.focal_right,
-            exif=exif, upcoming=upcoming, rotate=job.rotate,
+            left, right, baseline_m=job.pair.baseline_m, focal_left=job.pair.focal_left,
+            focal_right=job.pair.focal_right, exif=exif, upcoming=upcoming, rotate=job.pair.rotate,
         )  # fmt: skip
         report = json_safe(result.report())
         evidence = PairEvidence.from_result(result) if job.keep_evidence else None
         if job.out_dir is not None:
-            options = pair_options(
-                report.get("model") or {}, job.baseline_m, job.pinhole, job.lines, job.exif, job.rotate
-            )
+            options = pair_options(report.get("model") or {}, job.pair)
             figures = None
             if "html" in job.formats:  # what the pair's report.html draws
                 from stereogeo_cli.report.inputs import pair_inputs
@@ -98,14 +97,12 @@ def _init_worker(threads: int) -> None:
 
 
 def _worker_task(entry: PairEntry, job: PairJob) -> PairOutcome:
-    key = (job.model, job.threads, job.pinhole, job.lines)
+    key = (job.model, job.threads, job.pair.pinhole, job.pair.lines)
     if _WORKER.get("key") != key:
         from stereogeo_cli.pipeline import Calibrator
 
         try:
-            calibrator = Calibrator(
-                job.model, threads=job.threads, conf=calibrator_conf(job.pinhole, job.lines)
-            )
+            calibrator = Calibrator(job.model, threads=job.threads, conf=job.pair.calibrator_conf())
             _WORKER["calibrator"], _WORKER["key"] = calibrator, key
         except StereoGeoError as error:
             return PairOutcome(entry.name, entry.left, entry.right, "failed", str(error), fatal=True)

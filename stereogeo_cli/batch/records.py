@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from stereogeo_cli.options import PairOptions
 from stereogeo_cli.rig.evidence import PairEvidence
 
 RIG_FOLDER = "rig"  # --same-rig: the joint calibration's folder in OUT
@@ -30,28 +31,22 @@ NUMERIC_COLUMNS = CSV_COLUMNS[3:16]
 class BatchOptions:
     """How ``batch-calibrate`` runs, resolved once where the command starts.
 
-    ``formats``: the output formats of each pair (and of the joint calibration); ``workers``: processes, each
-    with its own network session of ``threads // workers`` threads; ``same_rig``: also one joint calibration
-    of all pairs (``rig/``); ``shard``: only shard i of n (1-based); ``progress``: a Rich progress bar on
-    stderr (else one plain line per pair there); ``pinhole``: fit no lens distortion; ``lines``: fit each
-    camera's gravity to the image's vertical line segments too; ``exif``: take each photo's EXIF focal length
-    as a prior; ``rotate``: degrees (0, 90, 180 or 270) to turn both images of every pair clockwise before
-    they are read (the results are for the images as they are); ``resume``: keep each pair whose folder holds
-    a complete calibration made with the same options, model and images (``batch/resume.py``);
-    ``overwrite``: replace what the output folder holds."""
+    ``formats``: the output formats of each pair (and of the joint calibration); ``pair``: how each pair is
+    calibrated (its baseline, ``--pinhole``, ``--no-lines``, ``--no-exif``, ``--rotate``); ``workers``:
+    processes, each with its own network session of ``threads // workers`` threads; ``same_rig``: also one
+    joint calibration of all pairs (``rig/``); ``shard``: only shard i of n (1-based); ``progress``: a Rich
+    progress bar on stderr (else one plain line per pair there); ``resume``: keep each pair whose folder holds
+    a complete calibration made with the same options, model and images (``batch/resume.py``); ``overwrite``:
+    replace what the output folder holds."""
 
     formats: tuple[str, ...] = ("opencv", "json")
-    baseline_m: float | None = None
+    pair: PairOptions = PairOptions()
     model: Path | None = None
     threads: int = 0
     workers: int = 1
     same_rig: bool = False
     shard: tuple[int, int] | None = None
     progress: bool = False
-    pinhole: bool = False
-    lines: bool = True
-    exif: bool = True
-    rotate: int = 0
     resume: bool = False
     overwrite: bool = False
 
@@ -62,16 +57,10 @@ class PairJob:
 
     out_dir: Path | None  # per-pair files go to out_dir/<name>/; None: write nothing
     formats: tuple[str, ...]
-    baseline_m: float | None
+    pair: PairOptions  # how each pair is calibrated (the second pass of --same-rig: at the rig's focals)
     model: Path | None
     threads: int
-    focal_left: float | None = None
-    focal_right: float | None = None
     keep_evidence: bool = False  # keep what --same-rig needs (focal, gravity, pose, matches)
-    pinhole: bool = False  # --pinhole: fit no lens distortion
-    lines: bool = True  # --no-lines: gravity from the fields alone, no vertical line segments
-    exif: bool = True  # --no-exif: no EXIF focal length as a prior
-    rotate: int = 0  # --rotate: degrees both images are turned clockwise before they are read
 
 
 @dataclass

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,9 @@ from typing import Any
 import numpy as np
 
 from stereogeo_cli import __version__
+from stereogeo_cli.fuse.assemble import CameraEstimate
 from stereogeo_cli.network.runtime import file_sha256
+from stereogeo_cli.options import PairOptions
 from stereogeo_cli.rig.evidence import PairEvidence
 
 MARKER = ".stereogeo-pair.json"
@@ -43,21 +46,19 @@ def model_identity(model: str | os.PathLike | None) -> dict[str, str | None]:
     return {"file": path.name, "sha256": digest}
 
 
-def pair_options(
-    model: dict, baseline_m: float | None, pinhole: bool, lines: bool, exif: bool, rotate: int = 0
-) -> dict:
+def pair_options(model: dict, pair: PairOptions) -> dict:
     """The options a pair's results depend on, as its marker records them (``model``: the report's block).
     ``rotate`` is recorded where it is not 0, so that the markers of unturned pairs name the options alone
     that they depend on."""
     options = {
         "stereogeo": __version__,
         "model": {"file": model.get("file"), "sha256": model.get("sha256")},
-        "baseline_m": None if baseline_m is None else float(baseline_m),
-        "pinhole": bool(pinhole),
-        "lines": bool(lines),
-        "exif": bool(exif),
+        "baseline_m": None if pair.baseline_m is None else float(pair.baseline_m),
+        "pinhole": bool(pair.pinhole),
+        "lines": bool(pair.lines),
+        "exif": bool(pair.exif),
     }
-    return options | ({"rotate_deg": int(rotate)} if rotate else {})
+    return options | ({"rotate_deg": int(pair.rotate)} if pair.rotate else {})
 
 
 def _inputs(left: Path, right: Path) -> dict[str, dict[str, str]]:
@@ -177,24 +178,25 @@ def remove_leftovers(out_dir: Path, names, summary_stem: str, rig_folder: str | 
 
 def evidence_bytes(ev) -> bytes:
     """A PairEvidence as an .npz file's bytes (exact: every number as float64 or int64)."""
-    priors = np.array([p if p is not None else (np.nan, np.nan) for p in ev.focal_prior], dtype=float)
+    left, right = ev.cameras
+    priors = [c.focal_prior for c in ev.cameras]
     arrays = {
-        "size_left": np.array(ev.size_left, dtype=np.int64),
-        "size_right": np.array(ev.size_right, dtype=np.int64),
-        "focal": np.array(ev.focal, dtype=float),
-        "focal_sigma": np.array(ev.focal_sigma, dtype=float),
-        "gravity_left": np.asarray(ev.gravity_left, dtype=float),
-        "gravity_right": np.asarray(ev.gravity_right, dtype=float),
+        "size_left": np.array((left.width, left.height), dtype=np.int64),
+        "size_right": np.array((right.width, right.height), dtype=np.int64),
+        "focal": np.array([c.focal_px for c in ev.cameras], dtype=float),
+        "focal_sigma": np.array([c.sigma["focal_px"] for c in ev.cameras], dtype=float),
+        "gravity_left": np.asarray(left.gravity_up, dtype=float),
+        "gravity_right": np.asarray(right.gravity_up, dtype=float),
         "R": np.asarray(ev.R, dtype=float),
         "t_direction": np.asarray(ev.t_direction, dtype=float),
         "pose_source": np.array(ev.pose_source),
         "baseline_m": np.array(ev.baseline_m, dtype=float),
         "matches_left": np.asarray(ev.matches_left, dtype=float),
         "matches_right": np.asarray(ev.matches_right, dtype=float),
-        "distortion": np.array(ev.distortion, dtype=float),
-        "focal_prior": priors,
-        "has_prior": np.array([p is not None for p in ev.focal_prior]),
-        "sigma_gravity_deg": np.array(ev.sigma_gravity_deg, dtype=float),
+        "distortion": np.array([c.division_k for c in ev.cameras], dtype=float),
+        "focal_prior": np.array([p if p is not None else (np.nan, np.nan) for p in priors], dtype=float),
+        "has_prior": np.array([p is not None for p in priors]),
+        "sigma_gravity_deg": np.array([c.sigma.get("gravity_deg", math.inf) for c in ev.cameras]),
         "sigma_rotation_deg": np.array(ev.sigma_rotation_deg, dtype=float),
         "sigma_direction_deg": np.array(ev.sigma_direction_deg, dtype=float),
         "sigma_baseline_rel": np.array(np.nan if ev.sigma_baseline_rel is None else ev.sigma_baseline_rel),
@@ -215,30 +217,34 @@ def read_evidence(data: bytes):
         return tuple(kind(v) for v in values)
 
     priors = tuple(pair(p) if has else None for p, has in zip(a["focal_prior"], a["has_prior"], strict=True))
+    gravity_sigmas = pair(a["sigma_gravity_deg"]) if "lens" in a else (math.inf, math.inf)
+    cameras = tuple(
+        CameraEstimate(
+            float(a["focal"][i]),
+            *pair(a[f"size_{side}"], int),
+            a[f"gravity_{side}"],
+            {"focal_px": float(a["focal_sigma"][i]), "gravity_deg": gravity_sigmas[i]},
+            division_k=float(a["distortion"][i]),
+            focal_prior=priors[i],
+        )  # fmt: skip
+        for i, side in enumerate(("left", "right"))
+    )
     optional = {}
     if "lens" in a:
         baseline_sigma = float(a["sigma_baseline_rel"])
         optional = {
-            "sigma_gravity_deg": pair(a["sigma_gravity_deg"]),
             "sigma_rotation_deg": float(a["sigma_rotation_deg"]),
             "sigma_direction_deg": float(a["sigma_direction_deg"]),
             "sigma_baseline_rel": None if np.isnan(baseline_sigma) else baseline_sigma,
             "lens": bool(a["lens"]),
         }
     return PairEvidence(
-        size_left=pair(a["size_left"], int),
-        size_right=pair(a["size_right"], int),
-        focal=pair(a["focal"]),
-        focal_sigma=pair(a["focal_sigma"]),
-        gravity_left=a["gravity_left"],
-        gravity_right=a["gravity_right"],
+        cameras=cameras,
         R=a["R"],
         t_direction=a["t_direction"],
         pose_source=str(a["pose_source"]),
         baseline_m=float(a["baseline_m"]),
         matches_left=a["matches_left"],
         matches_right=a["matches_right"],
-        distortion=pair(a["distortion"]),
-        focal_prior=priors,
         **optional,
     )

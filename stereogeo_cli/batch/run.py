@@ -33,7 +33,6 @@ from stereogeo_cli.io.pairs import discover_pairs, select_shard
 from stereogeo_cli.io.text import plural
 from stereogeo_cli.jobs.interrupt import Stop, protected
 from stereogeo_cli.jobs.progress import PairProgress
-from stereogeo_cli.pipeline import calibrator_conf
 
 
 @dataclass
@@ -144,11 +143,7 @@ def run_batch(
     folder, out_dir = Path(folder), Path(out_dir)
     entries = _entries(folder, out_dir, options)
     pairs = [e for e in entries if e.problem is None]
-    job = PairJob(
-        out_dir, options.formats, options.baseline_m, options.model, options.threads,
-        keep_evidence=options.same_rig, pinhole=options.pinhole, lines=options.lines, exif=options.exif,
-        rotate=options.rotate,
-    )  # fmt: skip
+    job = PairJob(out_dir, options.formats, options.pair, options.model, options.threads, options.same_rig)
     summary = BatchSummary([])
     with PairProgress(options.progress) as bar:
         unmatched = {e.name: PairOutcome(e.name, e.left, e.right, "failed", e.problem) for e in entries
@@ -216,7 +211,7 @@ def _calibrate(pairs, done, job: PairJob, options: BatchOptions, bar, stop, summ
         if not calibrator_cache:
             from stereogeo_cli.pipeline import Calibrator
 
-            conf = calibrator_conf(options.pinhole, options.lines)
+            conf = options.pair.calibrator_conf()
             calibrator_cache.append(Calibrator(options.model, threads=options.threads, conf=conf))
         return calibrator_cache[0]
 
@@ -236,9 +231,7 @@ def _calibrate(pairs, done, job: PairJob, options: BatchOptions, bar, stop, summ
                 done[i] = outcome
         if options.same_rig and all(o is not None for o in done):
             try:
-                summary.rig = same_rig_calibration(
-                    done, job, options.workers, calibrator, bar, options.baseline_m, stop
-                )
+                summary.rig = same_rig_calibration(done, job, options.workers, calibrator, bar, stop)
             except StereoGeoError as error:
                 summary.rig_error = error
     except KeyboardInterrupt as error:
@@ -249,10 +242,7 @@ def _calibrate(pairs, done, job: PairJob, options: BatchOptions, bar, stop, summ
 def _resumed(pairs, done, out_dir: Path, options: BatchOptions, stop) -> int:
     """Put into ``done`` each pair whose folder holds a complete calibration made as this run would make
     it (:func:`stereogeo_cli.batch.resume.completed_pair`); returns how many."""
-    recorded = resuming.pair_options(
-        resuming.model_identity(options.model), options.baseline_m, options.pinhole, options.lines,
-        options.exif, options.rotate,
-    )  # fmt: skip
+    recorded = resuming.pair_options(resuming.model_identity(options.model), options.pair)
     for i, e in enumerate(pairs):
         if stop is not None and stop.requested:
             break

@@ -29,7 +29,8 @@ from stereogeo_cli.errors import CalibrationFailed, StereoGeoError
 from stereogeo_cli.io.pairs import PairEntry
 from stereogeo_cli.io.text import plural
 from stereogeo_cli.jobs.progress import PairProgress
-from stereogeo_cli.pipeline import calibrator_conf, with_rotation_noted
+from stereogeo_cli.options import calibrator_conf
+from stereogeo_cli.pipeline import with_rotation_noted
 from stereogeo_cli.rig.combine import (
     FocalWidening,
     chordal_mean,
@@ -64,9 +65,9 @@ def pool_matches(evidence: Sequence[PairEvidence], K_left: np.ndarray, K_right: 
             undistort_division(points, intrinsic_matrix(focal, *size), k)
             for points, size, focal, k in zip(
                 (ev.matches_left, ev.matches_right),
-                (ev.size_left, ev.size_right),
-                ev.focal,
-                ev.distortion,
+                [(c.width, c.height) for c in ev.cameras],
+                [c.focal_px for c in ev.cameras],
+                [c.division_k for c in ev.cameras],
                 strict=True,
             )
         ]
@@ -80,8 +81,8 @@ def pool_matches(evidence: Sequence[PairEvidence], K_left: np.ndarray, K_right: 
 
 
 def _same_sizes(outcomes: Sequence[PairOutcome]) -> None:
-    for side in ("left", "right"):
-        sizes = {getattr(o.evidence, f"size_{side}") for o in outcomes}
+    for i, side in enumerate(("left", "right")):
+        sizes = {(o.evidence.cameras[i].width, o.evidence.cameras[i].height) for o in outcomes}
         if len(sizes) > 1:
             listed = ", ".join(f"{w}x{h}" for w, h in sorted(sizes))
             raise StereoGeoError(f"--same-rig: the {side} images differ in size ({listed}); one rig has one")
@@ -111,7 +112,7 @@ def calibrate_rig(
     if not ok:
         raise CalibrationFailed("--same-rig: no pair could be calibrated with the combined focal lengths")
     ev = [o.evidence for o in ok]
-    sizes = ev[0].size_left, ev[0].size_right
+    sizes = tuple((c.width, c.height) for c in ev[0].cameras)
     K_left, K_right = (intrinsic_matrix(est.focal_px, *size) for est, size in zip(focals, sizes, strict=True))
     pooled, counts = pool_matches(ev, K_left, K_right)
     t_mean = np.sum([e.t_direction for e in ev], axis=0)
@@ -161,11 +162,11 @@ def _pair_gravity(ok: Sequence[PairOutcome], counts, pose) -> list[dict[str, Any
     for o, n in zip(ok, counts, strict=True):
         e = o.evidence
         entry: dict[str, Any] = {"name": o.name, "pooled_matches": n}
-        for side, g in (("left", e.gravity_left), ("right", e.gravity_right)):
+        for side, g in zip(("left", "right"), e.gravity, strict=True):
             roll, pitch = roll_pitch_from_gravity(g)
             entry[f"gravity_{side}"] = [float(v) for v in g]
             entry[f"{side}_roll_deg"], entry[f"{side}_pitch_deg"] = math.degrees(roll), math.degrees(pitch)
-        coupling = gravity_angle(pose.R @ e.gravity_left, e.gravity_right)  # how well R·g_left = g_right
+        coupling = gravity_angle(pose.R @ e.gravity[0], e.gravity[1])  # how well R·g_left = g_right
         entry["gravity_error_deg"] = math.degrees(float(coupling))
         pairs.append(entry)
     return pairs
@@ -174,9 +175,7 @@ def _pair_gravity(ok: Sequence[PairOutcome], counts, pose) -> list[dict[str, Any
 # ---------------------------------------------------------------------------------------------- the batch
 
 
-def same_rig_calibration(
-    outcomes, job: PairJob, workers, calibrator, bar: PairProgress, baseline_m, stop=None
-):
+def same_rig_calibration(outcomes, job: PairJob, workers, calibrator, bar: PairProgress, stop=None):
     """The joint calibration of pass-1 ``outcomes`` (module docstring); None if ``stop`` (a
     :class:`~stereogeo_cli.jobs.interrupt.Stop`) is requested before it is done."""
     start = time.perf_counter()
@@ -185,11 +184,8 @@ def same_rig_calibration(
         raise CalibrationFailed("--same-rig: no pair was calibrated, so there is nothing to combine")
     _same_sizes(ok)
     focals = pairs_focals([o.evidence for o in ok])
-    second_job = PairJob(
-        None, job.formats, job.baseline_m, job.model, job.threads,
-        focal_left=focals[0].focal_px, focal_right=focals[1].focal_px, keep_evidence=True,
-        pinhole=job.pinhole, lines=job.lines, exif=job.exif, rotate=job.rotate,
-    )  # fmt: skip
+    pair = job.pair.with_focals(focals[0].focal_px, focals[1].focal_px)
+    second_job = PairJob(None, job.formats, pair, job.model, job.threads, keep_evidence=True)
     if stop is not None and stop.requested:
         return None
     bar.stage("same rig", len(ok))
@@ -202,6 +198,8 @@ def same_rig_calibration(
     # the rig's focal lengths are reported as a single pair's are: widened for photographs and by the
     # network's bias on a camera unless an EXIF prior took part (Calibrator.reported_sigma)
     widened = widenings(calibrator(), [o.evidence for o in ok])
-    rig = calibrate_rig(ok, second, focals, baseline_m, model_id, pinhole=job.pinhole, widenings=widened)
-    rig = with_rotation_noted(rig, job.rotate)
+    rig = calibrate_rig(
+        ok, second, focals, job.pair.baseline_m, model_id, pinhole=job.pair.pinhole, widenings=widened
+    )
+    rig = with_rotation_noted(rig, job.pair.rotate)
     return replace(rig, timing_ms={"total": (time.perf_counter() - start) * 1e3})  # the same-rig stage

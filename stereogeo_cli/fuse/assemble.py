@@ -30,9 +30,10 @@ from stereogeo_cli.refine.lm import vfov_sigma_deg
 
 @dataclass(frozen=True)
 class CameraEstimate:
-    """One camera as it is written: its focal length (pixels), image size, up vector (None where a rig's
-    pairs each have their own) and the reported 1-sigma figures (``focal_px``, ``vfov_deg``, and where there
-    is a gravity ``roll_deg``, ``pitch_deg``)."""
+    """One camera as estimated, by a pair, an adjustment or a rig: its focal length (pixels), image size,
+    up vector (None where a rig's pairs each have their own) and 1-sigma figures (``focal_px``; as it is
+    written also ``vfov_deg``, and where there is a gravity ``roll_deg``, ``pitch_deg``; a pair's reading of
+    its rig ``gravity_deg``)."""
 
     focal_px: float
     width: int
@@ -40,6 +41,16 @@ class CameraEstimate:
     gravity_up: np.ndarray | None
     sigma: dict[str, float]
     principal_point: tuple[float, float] | None = None  # (cx, cy) in pixels; None: the image's centre
+    principal_point_refined: bool = False  # the principal point was fitted (else held at the centre)
+    radial: tuple[float, float] = (0.0, 0.0)  # OpenCV's k1, k2, where the camera's own fit has them
+    division_k: float = 0.0  # a pair's fitted lens: the division model's k (normalised coordinates)
+    # the EXIF (or given) prior (focal, sigma) in pixels that a pair's reading took in, kept apart
+    focal_prior: tuple[float, float] | None = None
+
+    @property
+    def sigma_focal_rel(self) -> float:
+        """The focal length's relative 1-sigma (inf where it is not known)."""
+        return self.sigma.get("focal_px", math.inf) / self.focal_px
 
     @property
     def K(self) -> np.ndarray:

@@ -58,13 +58,38 @@ class StageProgress:
     starts a stage). ``mode``: "bar", a live line per stage on a terminal (what it does, a bar and the count
     where they are known, the time spent and, where counted, left), each left standing when it ends; "log",
     one plain line per stage as it ends (what it did, its count, the time spent); "off": nothing.
-    ``console``: the Rich console of the bar (default: stderr's)."""
+    Once told what the stages still to come are expected to take (:meth:`expect`), each line also says about
+    how long the whole run has left. ``console``: the Rich console of the bar (default: stderr's)."""
 
     def __init__(self, mode: str, console=None):
         self.mode, self._console = mode, console
         self._bar = self._task = self._stage = None
         self._done, self._total, self._start = 0, None, 0.0
         self._note = ""
+        self._expected: dict[str, float] = {}  # stage → seconds it is expected to take
+        self._took: dict[str, float] = {}  # stage → seconds it took, of the expected ones ended
+
+    def expect(self, seconds: dict[str, float]) -> None:
+        """The stages still to come (by name) and the seconds each is expected to take. The run's time left
+        is then their sum, scaled by how much faster or slower than expected the stages ended so far went,
+        less the time the stage in flight has run."""
+        self._expected, self._took = dict(seconds), {}
+
+    def time_left(self) -> float | None:
+        """About how many seconds the run has left (None: no :meth:`expect`)."""
+        if not self._expected:
+            return None
+        planned = sum(self._expected[stage] for stage in self._took)
+        # this machine's and this recording's pace against the expectation, within 4x either way
+        pace = min(max(sum(self._took.values()) / planned, 0.25), 4.0) if planned > 0 else 1.0
+        left = sum(t for stage, t in self._expected.items() if stage not in self._took)
+        if self._stage in self._expected and self._stage not in self._took:
+            left -= min(self._expected[self._stage], (time.perf_counter() - self._start) / pace)
+        return pace * max(left, 0.0)
+
+    def _left_text(self) -> str:
+        left = self.time_left()
+        return "" if left is None else f"about {_duration(left)} left in all"
 
     def __enter__(self):
         if self.mode == "bar":
@@ -77,7 +102,7 @@ class StageProgress:
                 TextColumn("{task.description}", table_column=Column(max_width=36, no_wrap=True,
                                                                      overflow="ellipsis")),
                 BarColumn(bar_width=20), TextColumn("{task.fields[count]}"), TimeElapsedColumn(),
-                TimeRemainingColumn(),
+                TimeRemainingColumn(), _run_left_column(self),
                 console=self._console or Console(stderr=True), transient=False,
             )  # fmt: skip
             self._bar.start()
@@ -109,6 +134,8 @@ class StageProgress:
         """End the stage in flight: complete, or ``stopped`` before its end."""
         if self._stage is None:
             return
+        if self._stage in self._expected and not stopped:
+            self._took[self._stage] = time.perf_counter() - self._start
         if self._bar is not None:  # the stage's line stays, with its time (and full where complete)
             if not stopped:
                 self._bar.update(self._task, total=self._total or 1, completed=self._total or 1)
@@ -119,6 +146,8 @@ class StageProgress:
             elapsed = time.perf_counter() - self._start
             ended = f"stopped after {elapsed:.1f} s" if stopped else f"{elapsed:.1f} s"
             note = f" ({self._note})" if self._note else ""
+            left = self._left_text() if not stopped and self.time_left() else ""
+            ended += f"; {left}" if left else ""
             print(f"{self._stage}{count}{note}: {ended}", file=sys.stderr, flush=True)
         self._stage = None
 
@@ -132,3 +161,25 @@ class StageProgress:
         self._stage = None  # an error: its own line says what went wrong
         if self._bar is not None:
             self._bar.stop()
+
+
+def _duration(seconds: float) -> str:
+    """A time left, as a person reads it: ``40 s``, ``3 min``, ``1 h 10 min``."""
+    if seconds < 90:
+        return f"{max(5 * round(seconds / 5), 5):.0f} s"
+    minutes = round(seconds / 60)
+    return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60} min"
+
+
+def _run_left_column(owner: StageProgress):
+    """A Rich column showing the whole run's time left (:meth:`StageProgress.time_left`), worked out anew
+    at each refresh, on the line of the stage in flight only."""
+    from rich.progress import ProgressColumn
+    from rich.text import Text
+
+    class RunLeft(ProgressColumn):
+        def render(self, task) -> Text:
+            in_flight = not task.finished and task.id == owner._task
+            return Text(owner._left_text() if in_flight else "", style="progress.remaining")
+
+    return RunLeft()

@@ -30,11 +30,12 @@ FOCAL_COMMON_SHARE = 1.0
 
 @dataclass(frozen=True)
 class FocalEstimate:
-    """A combined focal length in pixels, its 1-sigma, and which inputs were used."""
+    """A focal length in pixels and its 1-sigma (pixels; inf where it is not known); where it combines
+    readings, which of them were used."""
 
     focal_px: float
     sigma_px: float
-    used: np.ndarray  # [N] bool
+    used: np.ndarray | None = None  # [N] bool
 
 
 def combine_focals(focals: Sequence[float], sigmas: Sequence[float]) -> FocalEstimate:
@@ -79,8 +80,10 @@ def pairs_focals(evidence: Sequence[PairEvidence]) -> tuple[FocalEstimate, Focal
     with their EXIF priors once (:func:`with_prior`)."""
     return tuple(
         with_prior(
-            combine_focals([e.focal[i] for e in evidence], [e.focal_sigma[i] for e in evidence]),
-            [e.focal_prior[i] for e in evidence if e.focal_prior[i] is not None],
+            combine_focals(
+                [e.cameras[i].focal_px for e in evidence], [e.cameras[i].sigma["focal_px"] for e in evidence]
+            ),
+            [e.cameras[i].focal_prior for e in evidence if e.cameras[i].focal_prior is not None],
         )
         for i in (0, 1)
     )
@@ -88,7 +91,7 @@ def pairs_focals(evidence: Sequence[PairEvidence]) -> tuple[FocalEstimate, Focal
 
 def read_from_images(evidence: Sequence[PairEvidence]) -> tuple[bool, bool]:
     """Per camera: its focal length is the images' read alone (no pair had an EXIF or given prior)."""
-    return tuple(not any(e.focal_prior[i] is not None for e in evidence) for i in (0, 1))
+    return tuple(not any(e.cameras[i].focal_prior is not None for e in evidence) for i in (0, 1))
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from stereogeo_cli.errors import CalibrationFailed
+from stereogeo_cli.fuse.assemble import CameraEstimate
 from stereogeo_cli.geometry import rotation_angle
 from stereogeo_cli.sequence import blocks
 from stereogeo_cli.sequence.blocks import BlockFit
@@ -87,19 +88,6 @@ def image_centre(width: int, height: int) -> tuple[float, float]:
 
 
 @dataclass
-class AdjustedCamera:
-    """One camera after the adjustment: its focal length (pixels) with the 1-sigma from the adjustment's
-    covariance, and the radial terms k1, k2 of COLMAP's RADIAL (OpenCV's k1, k2; 0 for a pinhole)."""
-
-    focal_px: float
-    sigma_focal_px: float
-    k1: float = 0.0
-    k2: float = 0.0
-    principal_point: tuple[float, float] | None = None  # (cx, cy) in stereogeo's pixels
-    principal_point_refined: bool = False  # False: held at the image centre
-
-
-@dataclass
 class SequenceModel:
     """The largest model COLMAP made of a sequence.
 
@@ -109,7 +97,7 @@ class SequenceModel:
     """
 
     reconstruction: object  # pycolmap.Reconstruction
-    cameras: tuple[AdjustedCamera, AdjustedCamera]
+    cameras: tuple[CameraEstimate, CameraEstimate]  # as adjusted: sigma focal_px, principal point, radial
     R: np.ndarray
     T: np.ndarray
     cam_from_world: dict[str, np.ndarray]
@@ -484,7 +472,9 @@ def adjust(reconstruction, radial: bool, conf: dict, stop=None):
     centre biases f and R, and one freed without need adds noise to them (on thousands of points a fall
     is always "significant": the share is the practical test). Elsewhere they stay at the image centre.
 
-    Returns the (left, right) :class:`AdjustedCamera` (the same relative sigma for both) and the adjusted
+    Returns the (left, right) :class:`~stereogeo_cli.fuse.assemble.CameraEstimate` as adjusted (its
+    focal length's 1-sigma from the cost profile, the same relative one for both; the principal point in
+    stereogeo's pixels; COLMAP RADIAL's k1, k2, which are OpenCV's, 0 for a pinhole) and the adjusted
     reconstruction (``reconstruction`` itself, or its copy with the principal points freed). ``stop``: once
     it is requested, :class:`Cancelled` is raised before the next of its adjustments."""
     pycolmap = _pycolmap()
@@ -521,7 +511,9 @@ def adjust(reconstruction, radial: bool, conf: dict, stop=None):
         k = params[3:5] if radial else [0.0, 0.0]
         # COLMAP's principal point in stereogeo's pixels (pixel centres at integers)
         centre = (camera.principal_point_x - 0.5, camera.principal_point_y - 0.5)
-        cameras.append(AdjustedCamera(params[0], params[0] * sigma_rel, k[0], k[1], centre, free_centre))
+        sigma = {"focal_px": params[0] * sigma_rel}
+        size = camera.width, camera.height
+        cameras.append(CameraEstimate(params[0], *size, None, sigma, centre, free_centre, (k[0], k[1])))
     return (cameras[0], cameras[1]), reconstruction
 
 
@@ -849,6 +841,9 @@ def reconstruct(
         radial = starts[0].radial or starts[1].radial
         stage("COLMAP: mapping")
         models = map_frames(workspace, database, radial, conf, stop)
+        if models and hasattr(progress, "note"):  # the frames registered, on the stage's line
+            frames = len(os.listdir(workspace / "images" / SENSORS[0]))
+            progress.note(f"{models[0].num_reg_frames()} of {frames} frames registered")
         if not models or models[0].num_reg_frames() < conf["min_model_frames"]:
             raise CalibrationFailed(
                 "COLMAP could not reconstruct the sequence (too few frames share enough features): "
@@ -876,10 +871,10 @@ def _with_readings(
     others = [robust.focal_rel, centre.focal_rel] + ([] if left_out is None else [left_out.focal_sigma_rel])
     cameras = []
     for camera in model.cameras:
-        profile = camera.sigma_focal_px / camera.focal_px
+        profile = camera.sigma_focal_rel
         wider = max(profile, *others) if math.isfinite(profile) else profile
-        cameras.append(replace(camera, sigma_focal_px=camera.focal_px * wider))
-    profile = model.cameras[0].sigma_focal_px / model.cameras[0].focal_px
+        cameras.append(replace(camera, sigma={**camera.sigma, "focal_px": camera.focal_px * wider}))
+    profile = model.cameras[0].sigma_focal_rel
     return replace(
         model,
         cameras=tuple(cameras),

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereogeo_cli.fuse.assemble import finite
+from stereogeo_cli.fuse.assemble import CameraEstimate, finite
 from stereogeo_cli.geometry import roll_pitch_from_gravity
-from stereogeo_cli.rig.combine import combine_directions
+from stereogeo_cli.rig.combine import FocalEstimate, combine_directions
 from stereogeo_cli.settings import resolve
 
 default_conf = {
@@ -65,14 +65,6 @@ default_conf = {
 
 
 @dataclass(frozen=True)
-class FocalEvidence:
-    """A focal length (pixels) and its 1-sigma (pixels)."""
-
-    focal_px: float
-    sigma_px: float
-
-
-@dataclass(frozen=True)
 class SequenceFocal:
     """One camera's focal length from the sequence: ``focal_px`` ± ``sigma_px`` combined from the
     adjustment's and the pairs'; ``observable``: the motion fixed it (the adjustment carries it and the
@@ -83,8 +75,8 @@ class SequenceFocal:
     sigma_px: float
     observable: bool
     adjustment_weight: float
-    adjusted: FocalEvidence
-    pairs: FocalEvidence
+    adjusted: FocalEstimate
+    pairs: FocalEstimate
     pairs_left_out: bool = False  # the pairs' reading disagreed with a sharp adjustment's
 
     def to_report(self) -> dict:
@@ -100,13 +92,13 @@ class SequenceFocal:
 
 
 def combine_adjusted_focal(
-    adjusted,
-    pairs: FocalEvidence,
+    adjusted: CameraEstimate,
+    pairs: FocalEstimate,
     rotation_span_deg: float | None,
     conf: dict | None = None,
     travel_baselines: float | None = None,
 ) -> SequenceFocal:
-    """The adjustment's focal length (``adjusted.focal_px``, ``adjusted.sigma_focal_px`` from its cost
+    """The adjustment's focal length (``adjusted.focal_px``, its ``sigma["focal_px"]`` from its cost
     profile, infinite where there is none) combined with the pairs' ``pairs`` in log f; observable where
     the adjustment carries it and the rig turned by ``rotation_span_deg`` (None: unknown) enough. Where the
     rig also moved less than the conf's ``still_travel_baselines`` (``travel_baselines``: how far its
@@ -114,7 +106,7 @@ def combine_adjusted_focal(
     conf = resolve(default_conf, conf)
     f_a, f_p = adjusted.focal_px, pairs.focal_px
     floor = conf["focal_floor_rel_free_centre" if adjusted.principal_point_refined else "focal_floor_rel"]
-    s_a = math.hypot(adjusted.sigma_focal_px / f_a, floor)
+    s_a = math.hypot(adjusted.sigma_focal_rel, floor)
     s_p = pairs.sigma_px / f_p if math.isfinite(pairs.sigma_px) and pairs.sigma_px > 0 else math.inf
     still = (
         rotation_span_deg is not None
@@ -125,7 +117,7 @@ def combine_adjusted_focal(
     w_a = 0.0 if still or not math.isfinite(s_a) else 1.0 / s_a**2
     w_p = 0.0 if not math.isfinite(s_p) else 1.0 / s_p**2
     if w_a + w_p == 0:
-        return SequenceFocal(f_a, math.inf, False, 0.0, FocalEvidence(f_a, f_a * s_a), pairs)
+        return SequenceFocal(f_a, math.inf, False, 0.0, FocalEstimate(f_a, f_a * s_a), pairs)
     apart = abs(math.log(f_a / f_p)) / math.hypot(s_a, s_p) if w_a and w_p else 0.0
     pairs_left_out = apart > conf["pairs_reject_sigmas"]
     if pairs_left_out:
@@ -139,7 +131,7 @@ def combine_adjusted_focal(
         and rotation_span_deg >= conf["observable_min_rotation_deg"]
     )
     return SequenceFocal(
-        focal, sigma, observable, w_a / (w_a + w_p), FocalEvidence(f_a, f_a * s_a), pairs, pairs_left_out
+        focal, sigma, observable, w_a / (w_a + w_p), FocalEstimate(f_a, f_a * s_a), pairs, pairs_left_out
     )
 
 
@@ -175,8 +167,8 @@ def _up_readings(readings, cam_from_world: dict[int, np.ndarray], R: np.ndarray)
         if pose is None:
             continue
         world_from_left = pose[:3, :3].T
-        for gravity, sigma_deg, to_left in zip(reading.gravity, reading.sigma_gravity_deg, (np.eye(3), R.T),
-                                               strict=True):  # fmt: skip
+        for camera, to_left in zip(reading.cameras, (np.eye(3), R.T), strict=True):
+            gravity, sigma_deg = camera.gravity_up, camera.sigma.get("gravity_deg", math.inf)
             if gravity is None or not math.isfinite(sigma_deg) or sigma_deg <= 0:
                 continue
             up = world_from_left @ to_left @ np.asarray(gravity, float)

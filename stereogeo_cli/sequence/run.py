@@ -47,7 +47,6 @@ from stereogeo_cli.rig.evidence import PairEvidence
 from stereogeo_cli.rig.start import rig_baseline, rig_pose
 from stereogeo_cli.sequence import colmap
 from stereogeo_cli.sequence.evidence import (
-    FocalEvidence,
     attitude,
     combine_adjusted_focal,
     combine_ups,
@@ -57,6 +56,7 @@ from stereogeo_cli.sequence.evidence import (
     world_up,
 )
 from stereogeo_cli.sequence.keyframes import with_frames_counted
+from stereogeo_cli.sequence.options import SequenceOptions
 from stereogeo_cli.sequence.sources import FramePair, FrameSource
 from stereogeo_cli.settings import resolve
 
@@ -71,6 +71,27 @@ default_conf = {
     "colmap": {},  # overrides of stereogeo_cli.sequence.colmap.default_conf
     "evidence": {},  # overrides of stereogeo_cli.sequence.evidence.default_conf
 }
+
+
+# what each stage is expected to take, for the progress's estimate of the time left (which scales it by the
+# pace of the stages already done): seconds per frame pair kept and per pair the network calibrates, as
+# measured on 640 x 360 frames with two cores (docs/sequence.md, "Speed and limits")
+STAGE_SECONDS = {
+    "reading and calibrating frame pairs": (0.07, 1.0),  # (per frame, per pair calibrated)
+    "COLMAP: matching the frames": (0.14, 0.0),
+    "COLMAP: mapping": (0.42, 0.0),
+    "COLMAP: bundle adjustment": (0.30, 0.0),
+    "COLMAP: cross-checking the adjustment": (0.59, 0.0),
+    "combining the frames' evidence": (0.01, 0.0),
+}
+
+
+def expected_seconds(frames: int, calibrated: int) -> dict[str, float]:
+    """What each stage from the frames' reading on is expected to take (:data:`STAGE_SECONDS`)."""
+    return {
+        stage: frames * per_frame + calibrated * per_pair
+        for stage, (per_frame, per_pair) in STAGE_SECONDS.items()
+    }
 
 
 # ``progress(done, total, stage)``: ``done`` of ``total`` items (None: not counted) of the stage in flight;
@@ -156,6 +177,8 @@ def read_frames(
     sizes = None
     total = source.count()
     stride = max(1, math.ceil(total / conf["max_pairs_calibrated"])) if total else 1
+    if total and hasattr(progress, "expect"):  # the time left from here on, shown by the progress
+        progress.expect(expected_seconds(total, math.ceil(total / stride)))
     if progress is not None:
         progress(0, total, "reading and calibrating frame pairs")
     for frame in source:
@@ -253,7 +276,7 @@ def calibrate_frames(
     travel = _travel(cam_from_world) / baseline
     focals = [
         combine_adjusted_focal(
-            adjusted, FocalEvidence(pf.focal_px, pf.sigma_px), span, conf["evidence"], travel_baselines=travel
+            adjusted, FocalEstimate(pf.focal_px, pf.sigma_px), span, conf["evidence"], travel_baselines=travel
         )
         for adjusted, pf in zip(model.cameras, pair_focals, strict=True)
     ]
@@ -332,9 +355,12 @@ def _pairs_only(frames, readings, sizes, starts, pair_focals, R, T, baseline_m, 
     combined over the pairs (as the adjustment's start), each frame's attitude its own reading, and no
     trajectory or model. R's and T's sigmas are a typical pair's (the frames of one scene share their
     error)."""
-    cameras = tuple(colmap.AdjustedCamera(s.focal_px, math.inf) for s in starts)
+    cameras = tuple(
+        CameraEstimate(s.focal_px, w, h, None, {"focal_px": math.inf})
+        for s, (h, w) in zip(starts, sizes, strict=True)
+    )
     focals = [
-        combine_adjusted_focal(camera, FocalEvidence(pf.focal_px, pf.sigma_px), None)
+        combine_adjusted_focal(camera, FocalEstimate(pf.focal_px, pf.sigma_px), None)
         for camera, pf in zip(cameras, pair_focals, strict=True)
     ]
     model = colmap.SequenceModel(None, cameras, R, T, {}, 0, 0, math.nan)
@@ -383,7 +409,7 @@ def _assemble(frames, model, focals, attitudes, up, span, baseline, scale, model
         )  # fmt: skip
         for f, (h, w), camera in zip(focals, sizes, model.cameras, strict=True)
     )
-    D = tuple(np.array([c.k1, c.k2, 0.0, 0.0, 0.0]) if (c.k1 or c.k2) else np.zeros(0) for c in model.cameras)
+    D = tuple(np.array([*c.radial, 0.0, 0.0, 0.0]) if any(c.radial) else np.zeros(0) for c in model.cameras)
     scale_source, baseline_sigma = scale
     T = model.T / np.linalg.norm(model.T) * baseline
     pose = {
@@ -428,8 +454,8 @@ def _sequence_block(frames, model, focals, attitudes, up, span, scale) -> dict:
             "scale": {"source": scale_source, "sigma_rel": baseline_sigma},
             "lens": {
                 side: {
-                    "k1": c.k1,
-                    "k2": c.k2,
+                    "k1": c.radial[0],
+                    "k2": c.radial[1],
                     "principal_point": list(c.principal_point or ()),
                     "principal_point_refined": c.principal_point_refined,
                 }
@@ -449,37 +475,38 @@ def _sequence_block(frames, model, focals, attitudes, up, span, scale) -> dict:
 def calibrate_sequence(
     source: FrameSource,
     calibrator,
+    options: SequenceOptions | None = None,
     *,
-    baseline_m: float | None = None,
-    pinhole: bool = False,
-    conf: dict | None = None,
     progress: Progress | None = None,
-    workspace: str | Path | None = None,
     stop=None,
-    rotate: int = 0,
 ) -> SequenceResult | None:
     """Calibrate the rig of ``source``'s frames (see the module's docstring for the stages).
 
     ``calibrator``: a :class:`~stereogeo_cli.pipeline.Calibrator` (one network session for every pair);
-    ``workspace``: a folder for COLMAP's images and database (default: a temporary one, removed after);
-    ``rotate``: degrees to turn each pair clockwise before the network reads it (a rig upside down: 180);
+    ``options``: the baseline, ``--pinhole``, ``--rotate`` (degrees to turn each pair clockwise before the
+    network reads it: a rig upside down, 180), the workspace (a folder for COLMAP's images and database;
+    None: a temporary one, removed after) and the stages' settings;
     ``stop``: a :class:`~stereogeo_cli.jobs.interrupt.Stop`: once it is requested the run ends after the
     frame or COLMAP stage in flight and returns None (nothing half done is returned).
     """
-    temporary = workspace is None
-    folder = Path(tempfile.mkdtemp(prefix="stereogeo-sequence-")) if temporary else _workspace(workspace)
+    options = options or SequenceOptions()
+    pair, conf = options.pair, options.conf
+    temporary = options.workspace is None
+    folder = (
+        Path(tempfile.mkdtemp(prefix="stereogeo-sequence-")) if temporary else _workspace(options.workspace)
+    )
     try:
         read = read_frames(
-            source, calibrator, folder / "images", baseline_m=baseline_m, progress=progress, stop=stop,
-            conf=conf, rotate=rotate,
+            source, calibrator, folder / "images", baseline_m=pair.baseline_m, progress=progress, stop=stop,
+            conf=conf, rotate=pair.rotate,
         )  # fmt: skip
         model_file = (calibrator.model_path.name, calibrator.network.model_sha256)
         result = calibrate_frames(
-            read, folder, baseline_m=baseline_m, pinhole=pinhole, model_file=model_file,
+            read, folder, baseline_m=pair.baseline_m, pinhole=pair.pinhole, model_file=model_file,
             warnings=list(source.warnings), conf=conf, stop=stop, progress=progress,
         )  # fmt: skip
         if result is not None:
-            result.calibration = with_rotation_noted(result.calibration, rotate)
+            result.calibration = with_rotation_noted(result.calibration, pair.rotate)
             # the frames read, kept (by keyframes, where the source chose them) and registered
             result.calibration = with_frames_counted(result.calibration, source, len(read.frames))
         return result

@@ -159,19 +159,23 @@ def run_make_data(
     progress: bool,
     sequence: str | None = None,
     effects: dict | None = None,
+    rate: float | None = None,
     **options,
 ) -> None:
     """Write the dataset and/or the contact sheet, or one sequence; a one-line summary goes to stderr.
 
     Options left None take the defaults of the mode (PAIR_DEFAULTS, SEQUENCE_DEFAULTS or, for a drive,
-    DRIVE_DEFAULTS). ``effects``: the effect options of a sequence (EFFECT_OPTIONS), refused for pairs.
+    DRIVE_DEFAULTS). ``effects``: the effect options of a sequence (EFFECT_OPTIONS), refused for pairs;
+    ``rate`` (Hz): a sequence's frame rate (None: the motion's own time), refused for pairs.
     """
     if sequence is not None:
         _run_sequence(
             out, count=count, seed=seed, preview=preview, progress=progress, motion=sequence,
-            effects=effects or {}, **options,
+            effects=effects or {}, rate=rate, **options,
         )  # fmt: skip
         return
+    if rate is not None:
+        raise StereoGeoError("--rate is the frame rate of a sequence: it goes with --sequence MOTION")
     for key, value in (effects or {}).items():
         name, off = EFFECT_OPTIONS[key]
         if value != off:
@@ -207,6 +211,7 @@ def _run_sequence(
     progress: bool,
     motion: str,
     effects: dict,
+    rate: float | None = None,
     **options,
 ) -> None:
     """``make-data OUT --sequence MOTION``: one sequence of ``count`` frame pairs in OUT (docs/synth.md,
@@ -226,10 +231,13 @@ def _run_sequence(
     count = resolved.pop("count")
     if count < 1:
         raise StereoGeoError("--count: a sequence needs at least one frame")
+    if rate is not None and not rate > 0:  # NaN included
+        raise StereoGeoError(f"--rate must be > 0 Hz (frames per second), not {rate:g}")
     config = build_config(**resolved).replace(portrait_share=0.0, panorama_share=0.0)
     summary = make_sequence(
-        Path(out), motion, count, seed, config, progress=progress, effects=build_effects(effects)
-    )
+        Path(out), motion, count, seed, config, progress=progress, effects=build_effects(effects),
+        rate_hz=rate,
+    )  # fmt: skip
     print(
         f"wrote a {summary.motion} sequence of {plural(summary.frames, 'frame pair')} ({summary.scene} "
         f"scene) to {summary.folder}",

@@ -95,9 +95,13 @@ def sequence_config(motion: str | None = None, **changes) -> SynthConfig:
     return base.replace(**changes)
 
 
-def motion_duration(motion: str, frames: int) -> float:
-    """Seconds the motion spans: fixed per motion, or for a drive (frames − 1) frames at DRIVE_RATE_HZ
-    (one frame: a tenth of a second)."""
+def motion_duration(motion: str, frames: int, rate_hz: float | None = None) -> float:
+    """Seconds the motion spans: (frames − 1) frames at ``rate_hz`` where it is given (one frame: one
+    frame's time), else fixed per motion (DURATION_S), or for a drive (frames − 1) frames at DRIVE_RATE_HZ."""
+    if rate_hz is not None:
+        if not rate_hz > 0:
+            raise StereoGeoError(f"a sequence's frame rate must be > 0 Hz, not {rate_hz:g}")
+        return max(frames - 1, 1) / float(rate_hz)
     if motion == "drive":
         return max(frames - 1, 1) / DRIVE_RATE_HZ
     return DURATION_S[motion]
@@ -154,11 +158,14 @@ class Motion:
     Positions are in the anchor's heading frame (x right, y forward, z up; horizontal axes; metres);
     yaw, roll and pitch are added to the anchor's (radians; yaw > 0 turns left). ``extent`` ∈ (0, 1]
     keeps the first part of a straight or turning path (the rest is the same path cut short).
+    ``duration`` (seconds, None: the motion's DURATION_S) is the time a hand-held sweep's sinusoids span
+    (the other motions are shaped over u, or, a drive, carry their duration in ``params``).
     """
 
     kind: str
     params: dict
     extent: float = 1.0
+    duration: float | None = None
 
     def at(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(xyz [N x 3] metres, yaw [N], roll [N], pitch [N] radians) at sequence times ``u`` ∈ [0, 1] [N]."""
@@ -181,7 +188,7 @@ class Motion:
             z = p["bob_m"] * np.sin(2 * np.pi * np.abs(theta) * r / p["bob_wavelength_m"])
             return np.stack([x, y, z], 1), theta, zero, zero
         if self.kind == "handheld":
-            t = u * DURATION_S["handheld"]
+            t = u * (DURATION_S["handheld"] if self.duration is None else self.duration)
             dofs = [_smooth(t, p[name]) for name in ("x", "y", "z", "yaw", "roll", "pitch")]
             return np.stack(dofs[:3], 1), dofs[3], dofs[4], dofs[5]
         if self.kind == "drive":
@@ -225,8 +232,9 @@ def _smooth(t: np.ndarray, spec: dict) -> np.ndarray:
     return total * spec["amplitude"] / spec["peak"]
 
 
-def _handheld_dof(rng: np.random.Generator, amplitude: float) -> dict:
-    """One degree of freedom of a hand-held sweep: two or three sinusoids of 0.12–0.5 Hz."""
+def _handheld_dof(rng: np.random.Generator, amplitude: float, duration: float) -> dict:
+    """One degree of freedom of a hand-held sweep: two or three sinusoids of 0.12–0.5 Hz, scaled to the
+    peak ``amplitude`` over ``duration`` seconds."""
     k = int(rng.integers(2, 4))
     spec = {
         "freq_hz": [float(v) for v in rng.uniform(0.12, 0.5, k)],
@@ -235,7 +243,7 @@ def _handheld_dof(rng: np.random.Generator, amplitude: float) -> dict:
         "amplitude": 1.0,
         "peak": 1.0,
     }
-    grid = np.linspace(0.0, DURATION_S["handheld"], 2001)
+    grid = np.linspace(0.0, duration, max(2001, int(np.ceil(duration * 400)) + 1))
     return {**spec, "amplitude": float(amplitude), "peak": float(np.max(np.abs(_smooth(grid, spec))))}
 
 
@@ -264,8 +272,9 @@ def _drive_params(rng: np.random.Generator, duration: float) -> dict:
 def sample_motion(
     rng: np.random.Generator, kind: str, outdoor: bool, duration: float | None = None
 ) -> Motion:
-    """The motion's parameters (metres, radians; see :class:`Motion`); ``duration`` (seconds) for a drive,
-    default one of 50 frames."""
+    """The motion's parameters (metres, radians; see :class:`Motion`); ``duration`` (seconds) for a drive
+    (default one of 50 frames) and a hand-held sweep (default its DURATION_S); the other motions are shaped
+    over the sequence whatever its time."""
     if kind == "straight":
         return Motion(
             kind,
@@ -299,7 +308,10 @@ def sample_motion(
             "roll": np.radians(rng.uniform(8.0, 15.0)),
             "pitch": np.radians(rng.uniform(8.0, 15.0)),
         }
-        return Motion(kind, {name: _handheld_dof(rng, a) for name, a in amplitudes.items()})
+        span = DURATION_S["handheld"] if duration is None else float(duration)
+        return Motion(
+            kind, {name: _handheld_dof(rng, a, span) for name, a in amplitudes.items()}, duration=span
+        )
     if kind == "static":
         return Motion(kind, {})
     if kind == "drive":
@@ -524,13 +536,16 @@ def plan_sequence(
     seed: int,
     config: SynthConfig | None = None,
     effects: SequenceEffects | None = None,
+    rate_hz: float | None = None,
 ) -> SequencePlan:
     """Build the scene and the per-frame rigs of sequence (motion, seed) and its calib.json record.
 
     Scenes are drawn until the whole path keeps clear of every surface (a straight or turning path may be
     cut short where it meets an obstacle, see ``long_enough``) and the views are usable
     (``_views_are_usable``). ``effects`` (default: none) add the effects of real recordings.
-    Call ``release()`` on the plan when its frames are rendered.
+    ``rate_hz``: the frame rate; the motion then spans (frames − 1) / rate_hz seconds (default: the
+    motion's own time, see :func:`motion_duration`). Call ``release()`` on the plan when its frames are
+    rendered.
     """
     from stereogeo_cli.synth.sample import get_renderer
 
@@ -547,7 +562,7 @@ def plan_sequence(
     stream = [seed, 0x5E9, MOTIONS.index(motion) + 1]
     rng = np.random.default_rng(stream)
     u = np.linspace(0.0, 1.0, frames) if frames > 1 else np.zeros(1)
-    duration = motion_duration(motion, frames)
+    duration = motion_duration(motion, frames, rate_hz)
 
     def intrinsics(rig: Rig) -> Rig:
         return with_intrinsics(rig, effects, seed)
@@ -555,11 +570,13 @@ def plan_sequence(
     plan_motion, scene, rigs, sky_index, sky_yaw, vaos, attempts = _draw_scene(
         motion, seed, rng, cfg, renderer, rig_sample, u, duration, intrinsics
     )
-    timestamps = u * duration
+    timestamps = u * duration if rate_hz is None else np.arange(frames) / float(rate_hz)
     if effects.moving_objects:
         args = (renderer.materials, plan_motion, rig_sample, timestamps, duration)
         scene = _with_movers(scene, effects.moving_objects, stream, *args)
     calib = _calib(motion, seed, cfg, plan_motion, rig_sample, scene, rigs, timestamps, attempts, duration)
+    if rate_hz is not None:
+        calib["extra"]["rate_hz"] = float(rate_hz)
     calib["extra"]["sky"] = renderer.sky_name(sky_index)
     gains = exposure_gains(seed, MOTIONS.index(motion) + 1, timestamps, effects.exposure_stops)
     if effects.active:
@@ -832,12 +849,13 @@ def make_sequence(
     config: SynthConfig | None = None,
     progress: bool = True,
     effects: SequenceEffects | None = None,
+    rate_hz: float | None = None,
 ) -> SequenceSummary:
     """Render sequence (motion, seed) of ``frames`` pairs into ``folder``: left/<frame>.png,
     right/<frame>.png (frames 000000, 000001, … in time order), depth/ with ``config.depth``, left.mp4 and
-    right.mp4 with ``effects.keep_video``, and calib.json last. The same arguments give the same bytes; a
-    folder holding an earlier (or interrupted) sequence is overwritten, any other non-empty folder is
-    refused."""
+    right.mp4 with ``effects.keep_video``, and calib.json last; ``rate_hz``: the frame rate (see
+    :func:`plan_sequence`). The same arguments give the same bytes; a folder holding an earlier (or
+    interrupted) sequence is overwritten, any other non-empty folder is refused."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from stereogeo_cli.synth.dataset import _atomic_write, _npy, _png
@@ -845,8 +863,10 @@ def make_sequence(
 
     folder = Path(folder)
     cfg = config or sequence_config(motion)
+    if rate_hz is not None:
+        motion_duration(motion, frames, rate_hz)  # a bad rate is refused before the folder is touched
     _prepare_folder(folder)
-    plan = plan_sequence(motion, frames, seed, cfg, effects)
+    plan = plan_sequence(motion, frames, seed, cfg, effects, rate_hz)
     try:
         if cfg.depth:
             for side in _SIDES:
