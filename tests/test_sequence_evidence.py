@@ -187,3 +187,21 @@ def test_a_camera_in_the_scaled_world_stays_a_rotation_and_a_metric_translation(
     np.testing.assert_allclose(new[:3, :3] @ new[:3, :3].T, np.eye(3), atol=1e-12)
     point = np.append(rng.normal(size=3), 1.0)
     np.testing.assert_allclose(new @ (moved @ point), np.append(2.5 * (pose @ point)[:3], 1.0), atol=1e-12)
+
+
+def test_an_adjustment_of_part_of_the_frames_does_not_outvote_the_pairs():
+    """A sharp adjustment over 3 sigmas from the pairs leaves them out where it registered every frame;
+    where it registered 40 % of them (a broken mapping), the pairs stay, and the sigma covers both
+    readings."""
+    pairs = FocalEstimate(400.0, 26.0)  # 6.5 %: the 2 % adjustment is 3.3 sigmas off, and fixes f
+    whole = combine_adjusted_focal(adjusted(500.0, 0.5), pairs, rotation_span_deg=40.0)
+    assert whole.pairs_left_out and whole.observable and not whole.partial
+    assert whole.focal_px == pytest.approx(500.0, rel=1e-3)
+    part = combine_adjusted_focal(adjusted(500.0, 0.5), pairs, rotation_span_deg=40.0, registered_share=0.4)
+    assert part.partial and not part.pairs_left_out and not part.observable
+    assert 400.0 < part.focal_px < 500.0
+    low, high = part.focal_px - part.sigma_px, part.focal_px + part.sigma_px
+    assert low <= 400.0 * 1.02 and high >= 500.0  # both readings within about 1 sigma
+    near = FocalEstimate(490.0, 49.0)
+    agreed = combine_adjusted_focal(adjusted(500.0, 0.5), near, 40.0, registered_share=0.4)
+    assert agreed.partial and agreed.observable and agreed.sigma_px < 0.03 * 500.0  # agreeing: no widening

@@ -20,6 +20,7 @@ import contextlib
 import glob
 import math
 import os
+import sys
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -39,6 +40,10 @@ default_conf = {
     "max_features": 1024,  # SIFT features per image
     "overlap": 3,  # each frame is matched with this many following frames
     "quadratic_overlap": True,  # and with the frames 2, 4, 8, … further on
+    # loop detection: every ``period``-th image is also matched with the ``images`` that look most like it,
+    # however far apart in time (where the rig comes back), by a vocabulary tree of ``words`` visual words
+    # built from ``sample`` of the sequence's own SIFT descriptors (nothing is downloaded)
+    "loop_detection": {"enabled": True, "period": 5, "images": 20, "words": 1024, "sample": 40000},
     "min_model_frames": 3,  # a model of fewer registered frames is no calibration
     "threads": -1,  # COLMAP's threads (-1: all cores)
     # overrides of COLMAP's IncrementalPipelineOptions: the global adjustments while frames are added
@@ -235,6 +240,23 @@ def logging_into(workspace: str | os.PathLike):
                 written.unlink()
 
 
+@contextlib.contextmanager
+def _stderr_into(path: Path):
+    """While the block runs, what the process writes to its stderr file descriptor (C++ libraries' own
+    prints) is appended to ``path`` instead."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(path, "ab") as log:
+            os.dup2(log.fileno(), 2)
+            try:
+                yield
+            finally:
+                os.dup2(saved, 2)
+    finally:
+        os.close(saved)
+
+
 def image_features(image: np.ndarray, max_features: int) -> tuple[np.ndarray, np.ndarray]:
     """One image's SIFT keypoints as COLMAP stores them: positions [N x 2] float32 in COLMAP's pixels and
     descriptors [N x 128] uint8. OpenCV's SIFT (the pipeline's detector) is several times faster than
@@ -327,14 +349,40 @@ def match_frames(
         _write_cameras(db, starts)
         pycolmap.apply_rig_config([_rig_config(pycolmap, R, T)], db)
     matching = pycolmap.FeatureMatchingOptions(num_threads=conf["threads"])
+    loops = conf["loop_detection"]
     pairing = pycolmap.SequentialPairingOptions(
-        overlap=conf["overlap"], quadratic_overlap=conf["quadratic_overlap"]
-    )
+        overlap=conf["overlap"], quadratic_overlap=conf["quadratic_overlap"], loop_detection=loops["enabled"],
+        **(_loop_options(database, workspace, loops, conf["threads"]) if loops["enabled"] else {}),
+    )  # fmt: skip
     _cancellable(
         pycolmap.match_sequential, database, matching_options=matching, pairing_options=pairing,
         device=pycolmap.Device.cpu, stop=stop,
     )  # fmt: skip
     return database
+
+
+def _loop_options(database: Path, workspace: Path, loops: dict, threads: int) -> dict:
+    """The sequential matching's loop detection options, with a vocabulary tree (COLMAP's visual index)
+    built from an even sample of the database's own descriptors into ``workspace``: COLMAP's trees are
+    downloads, and one recording's own words find its own places again."""
+    pycolmap = _pycolmap()
+    with pycolmap.Database.open(database) as db:
+        descriptors = [np.asarray(db.read_descriptors(image.image_id).data) for image in db.read_all_images()]
+    pool = np.concatenate(descriptors).astype(np.float32)
+    sample = pool[np.random.default_rng(0).permutation(len(pool))[: loops["sample"]]]
+    words = int(min(loops["words"], max(len(sample) // 40, 16)))  # the clustering wants 40 points a word
+    index = pycolmap.VisualIndex.create(sample.shape[1], 64)
+    build = pycolmap.VisualIndex.BuildOptions(num_visual_words=words, num_iterations=10, num_rounds=1,
+                                              num_threads=threads)  # fmt: skip
+    with _stderr_into(workspace / LOG_NAME):  # the clustering's own warnings, printed outside COLMAP's log
+        index.build(build, pycolmap.FeatureDescriptorsFloat(pycolmap.FeatureExtractorType.SIFT, sample))
+    path = workspace / "vocabulary.bin"
+    index.write(path)
+    return {
+        "vocab_tree_path": str(path),
+        "loop_detection_period": loops["period"],
+        "loop_detection_num_images": loops["images"],
+    }
 
 
 def _mapping_options(pycolmap, radial: bool, conf: dict):

@@ -50,6 +50,11 @@ default_conf = {
     # network's read of a real lens can be far off (a car camera's 313 px for 707), and a sharp
     # adjustment is then the measurement
     "pairs_reject_sigmas": 3.0,
+    # ... unless the mapping registered less than this share of the frames: its model is of a stretch of
+    # them, and a broken mapping can be sharp and wrong there (renders that registered 12 of 30 frames read
+    # 15-20 % high at 3-5 sigmas); its reading then does not outvote the pairs', and where the two disagree
+    # the combined sigma is at least their distance
+    "partial_registration_share": 0.8,
     # a frame's up reading farther than this many of its sigmas from the robust centre is left out
     "up_reject_sigmas": 3.0,
     # the combined up's sigma is at least the frames' median sigma over this: the frames of one sequence
@@ -78,6 +83,7 @@ class SequenceFocal:
     adjusted: FocalEstimate
     pairs: FocalEstimate
     pairs_left_out: bool = False  # the pairs' reading disagreed with a sharp adjustment's
+    partial: bool = False  # the adjustment's model registered part of the frames only
 
     def to_report(self) -> dict:
         return {
@@ -86,6 +92,7 @@ class SequenceFocal:
             "observable": self.observable,
             "adjustment_weight": self.adjustment_weight,
             "pairs_left_out": self.pairs_left_out,
+            "partial_registration": self.partial,
             "adjustment": {"focal_px": self.adjusted.focal_px, "sigma_px": finite(self.adjusted.sigma_px)},
             "pairs": {"focal_px": self.pairs.focal_px, "sigma_px": finite(self.pairs.sigma_px)},
         }
@@ -97,12 +104,16 @@ def combine_adjusted_focal(
     rotation_span_deg: float | None,
     conf: dict | None = None,
     travel_baselines: float | None = None,
+    registered_share: float = 1.0,
 ) -> SequenceFocal:
     """The adjustment's focal length (``adjusted.focal_px``, its ``sigma["focal_px"]`` from its cost
     profile, infinite where there is none) combined with the pairs' ``pairs`` in log f; observable where
     the adjustment carries it and the rig turned by ``rotation_span_deg`` (None: unknown) enough. Where the
     rig also moved less than the conf's ``still_travel_baselines`` (``travel_baselines``: how far its
-    camera moved, in rig baselines; None: unknown), it stood still and the adjustment is left out."""
+    camera moved, in rig baselines; None: unknown), it stood still and the adjustment is left out. Where
+    the adjustment's model registered less than the conf's ``partial_registration_share`` of the frames
+    (``registered_share``), the pairs are never left out, and the sigma is at least the two readings'
+    distance."""
     conf = resolve(default_conf, conf)
     f_a, f_p = adjusted.focal_px, pairs.focal_px
     floor = conf["focal_floor_rel_free_centre" if adjusted.principal_point_refined else "focal_floor_rel"]
@@ -119,19 +130,24 @@ def combine_adjusted_focal(
     if w_a + w_p == 0:
         return SequenceFocal(f_a, math.inf, False, 0.0, FocalEstimate(f_a, f_a * s_a), pairs)
     apart = abs(math.log(f_a / f_p)) / math.hypot(s_a, s_p) if w_a and w_p else 0.0
-    pairs_left_out = apart > conf["pairs_reject_sigmas"]
+    partial = registered_share < conf["partial_registration_share"] and w_a > 0
+    pairs_left_out = apart > conf["pairs_reject_sigmas"] and not partial
     if pairs_left_out:
         w_p = 0.0
     log_f = (w_a * math.log(f_a) + w_p * math.log(f_p)) / (w_a + w_p)
     focal = math.exp(log_f)
     sigma = focal / math.sqrt(w_a + w_p)
+    if partial and w_p > 0:  # a stretch's reading against the pairs': the sigma covers both
+        sigma = max(sigma, focal * abs(math.log(f_a / f_p)))
     observable = (
         s_a < conf["observable_ratio"] * s_p
+        and sigma / focal < conf["observable_ratio"] * s_p
         and rotation_span_deg is not None
         and rotation_span_deg >= conf["observable_min_rotation_deg"]
     )
+    weight = w_a / (w_a + w_p)
     return SequenceFocal(
-        focal, sigma, observable, w_a / (w_a + w_p), FocalEstimate(f_a, f_a * s_a), pairs, pairs_left_out
+        focal, sigma, observable, weight, FocalEstimate(f_a, f_a * s_a), pairs, pairs_left_out, partial
     )
 
 

@@ -55,6 +55,7 @@ from stereogeo_cli.sequence.evidence import (
     up_from_segments,
     world_up,
 )
+from stereogeo_cli.sequence.evidence import default_conf as evidence_conf
 from stereogeo_cli.sequence.keyframes import with_frames_counted
 from stereogeo_cli.sequence.options import SequenceOptions
 from stereogeo_cli.sequence.sources import FramePair, FrameSource
@@ -261,6 +262,9 @@ def calibrate_frames(
     rig_sigmas = rig_sigmas_deg(_rig_spread(model), model.cameras, sizes, conf["evidence"], measured)
     by_index = {f"{f.index:06d}.png": f for f in frames}
     registered = {int(name[:6]): pose for name, pose in model.cam_from_world.items()}
+    partial = resolve(evidence_conf, conf["evidence"])["partial_registration_share"]
+    if len(registered) < partial * len(frames):
+        rig_sigmas = _covering_the_pairs(rig_sigmas, model, R0, T0)
     up, up_sigma_deg, used = world_up(readings, registered, model.R, conf["evidence"])
     if up is None:  # no frame's gravity could be read: the first frame's image up stands in, unweighed
         first = registered[min(registered)]
@@ -274,14 +278,8 @@ def calibrate_frames(
     attitudes = frame_attitudes(cam_from_world, np.array([0.0, 0.0, 1.0]), model.R)
     span = _rotation_span(cam_from_world)
     travel = _travel(cam_from_world) / baseline
-    focals = [
-        combine_adjusted_focal(
-            adjusted, FocalEstimate(pf.focal_px, pf.sigma_px), span, conf["evidence"], travel_baselines=travel
-        )
-        for adjusted, pf in zip(model.cameras, pair_focals, strict=True)
-    ]
-    if any(f.pairs_left_out for f in focals):
-        notes.append("the pairs' reading of the focal length disagrees with the adjustment's: left out")
+    motion = span, travel, len(registered) / len(frames)
+    focals = _focals(model, pair_focals, motion, conf["evidence"], notes)
     trajectory = [
         (by_index[f"{i:06d}.png"].time, np.linalg.inv(cam_from_world[i])) for i in sorted(cam_from_world)
     ]
@@ -292,6 +290,43 @@ def calibrate_frames(
         sizes, rig_sigmas,
     )  # fmt: skip
     return SequenceResult(calibration, model.reconstruction, trajectory)
+
+
+def _focals(model, pair_focals, motion: tuple, conf: dict, notes: list[str]) -> list:
+    """Each camera's focal length, the adjustment's combined with the pairs'
+    (:func:`~stereogeo_cli.sequence.evidence.combine_adjusted_focal`); ``motion``: the rig's rotation span
+    (degrees), its travel (rig baselines) and the share of the frames registered. What the combination
+    decided is noted in ``notes``."""
+    span, travel, share = motion
+    focals = [
+        combine_adjusted_focal(
+            adjusted,
+            FocalEstimate(pf.focal_px, pf.sigma_px),
+            span,
+            conf,
+            travel_baselines=travel,
+            registered_share=share,
+        )  # fmt: skip
+        for adjusted, pf in zip(model.cameras, pair_focals, strict=True)
+    ]
+    if any(f.pairs_left_out for f in focals):
+        notes.append("the pairs' reading of the focal length disagrees with the adjustment's: left out")
+    if any(f.partial for f in focals):
+        notes.append(
+            f"the adjustment registered {share:.0%} of the frames: its focal length is theirs alone, and its "
+            "sigma takes in how far the pairs' reading lies from it"
+        )
+    return focals
+
+
+def _covering_the_pairs(rig_sigmas: tuple[float, float], model, R0: np.ndarray, T0: np.ndarray) -> tuple:
+    """R's and T's direction's sigmas (degrees) at least as wide as the adjustment's R and T lie from the
+    pairs' (``R0``, ``T0``): the adjustment of part of the frames only can be sharp and wrong there, as
+    its focal length can (``partial_registration_share``)."""
+    turn = math.degrees(rotation_angle(model.R @ R0.T))
+    cos = float(model.T @ T0) / float(np.linalg.norm(model.T) * np.linalg.norm(T0))
+    direction = math.degrees(math.acos(min(max(cos, -1.0), 1.0)))
+    return max(rig_sigmas[0], turn), max(rig_sigmas[1], direction)
 
 
 def _model_notes(model, frames: int, registered: int, focals) -> list[str]:
