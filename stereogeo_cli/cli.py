@@ -306,8 +306,8 @@ def make_data(
         portrait_share=portrait_share, vfov=(vfov_min, vfov_max), baseline=(baseline_min, baseline_max),
         max_angle=max_angle, outdoor_share=outdoor_share, close_share=close_share,
         panorama_share=panorama_share, panorama_max_upsampling=panorama_max_upsampling, augment=augment,
-        depth=depth, textures=textures,
-        panoramas=panoramas, preview=preview, progress=sys.stderr.isatty() if progress is None else progress,
+        depth=depth, textures=textures, panoramas=panoramas, preview=preview,
+        progress=sys.stderr.isatty() if progress is None else progress,
         effects={"principal_offset": principal_offset, "focal_aspect": focal_aspect, "h264": h264,
                  "keep_video": keep_video, "exposure_changes": exposure_changes, "motion_blur": motion_blur,
                  "moving_objects": moving_objects},
@@ -867,8 +867,7 @@ def calibrate_sequence(
     from stereogeo_cli.options import PairOptions
     from stereogeo_cli.sequence.options import SequenceOptions
 
-    if threads < 0:
-        raise StereoGeoError("--threads must be 0 or more")
+    _check_threads(threads)
     options = SequenceOptions(
         video=video, sbs=sbs, left_topic=left_topic, right_topic=right_topic,
         stamp_tolerance_s=stamp_tolerance, every=every, fps=fps, max_frames=max_frames, keyframes=keyframes,
