@@ -165,7 +165,8 @@ def _returning_frames(images: Path, first: int = 11) -> None:
 
     rng = np.random.default_rng(3)
     wall = cv2.GaussianBlur(rng.integers(0, 256, (300, 1400, 3), dtype=np.uint8), (0, 0), 1.5)
-    for x, y, r in zip(rng.integers(0, 1400, 400), rng.integers(0, 300, 400), rng.integers(4, 25, 400)):
+    spots = rng.integers(0, 1400, 400), rng.integers(0, 300, 400), rng.integers(4, 25, 400)
+    for x, y, r in zip(*spots, strict=True):
         cv2.circle(wall, (int(x), int(y)), int(r), tuple(int(c) for c in rng.integers(0, 256, 3)), -1)
     for side, shift in (("left", 0), ("right", 12)):
         (images / side).mkdir(parents=True)

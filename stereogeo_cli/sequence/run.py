@@ -78,11 +78,11 @@ default_conf = {
 # pace of the stages already done): seconds per frame pair kept and per pair the network calibrates, as
 # measured on 640 x 360 frames with two cores (docs/sequence.md, "Speed and limits")
 STAGE_SECONDS = {
-    "reading and calibrating frame pairs": (0.07, 1.0),  # (per frame, per pair calibrated)
-    "COLMAP: matching the frames": (0.14, 0.0),
-    "COLMAP: mapping": (0.42, 0.0),
-    "COLMAP: bundle adjustment": (0.30, 0.0),
-    "COLMAP: cross-checking the adjustment": (0.59, 0.0),
+    "reading and calibrating frame pairs": (0.07, 0.8),  # (per frame, per pair calibrated)
+    "COLMAP: matching the frames": (0.15, 0.0),
+    "COLMAP: mapping": (0.29, 0.0),
+    "COLMAP: bundle adjustment": (0.26, 0.0),
+    "COLMAP: cross-checking the adjustment": (0.46, 0.0),
     "combining the frames' evidence": (0.01, 0.0),
 }
 
