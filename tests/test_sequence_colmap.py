@@ -185,7 +185,7 @@ def test_loop_detection_matches_the_frames_where_the_rig_came_back(tmp_path, loo
 
     _returning_frames(tmp_path / "images")
     starts = tuple(colmap.CameraStart(300.0, 320, 240, False) for _ in range(2))
-    conf = {"loop_detection": {"enabled": loops, "period": 1}, "threads": 2}
+    conf = {"loop_detection": {"enabled": loops, "period": 1, "min_frames": 2}, "threads": 2}
     with colmap.logging_into(tmp_path):
         database = colmap.match_frames(tmp_path, starts, np.eye(3), np.array([-0.1, 0.0, 0.0]), conf)
     pycolmap = colmap._pycolmap()

@@ -42,8 +42,17 @@ default_conf = {
     "quadratic_overlap": True,  # and with the frames 2, 4, 8, … further on
     # loop detection: every ``period``-th image is also matched with the ``images`` that look most like it,
     # however far apart in time (where the rig comes back), by a vocabulary tree of ``words`` visual words
-    # built from ``sample`` of the sequence's own SIFT descriptors (nothing is downloaded)
-    "loop_detection": {"enabled": True, "period": 5, "images": 20, "words": 1024, "sample": 40000},
+    # built from ``sample`` of the sequence's own SIFT descriptors (nothing is downloaded); for recordings of
+    # at least ``min_frames`` frames: on shorter ones the sequential window reaches across much of them, and
+    # the extra wide-baseline pairs moved R and T's direction the wrong way (docs/sequence.md)
+    "loop_detection": {
+        "enabled": True,
+        "min_frames": 100,
+        "period": 5,
+        "images": 20,
+        "words": 1024,
+        "sample": 40000,
+    },
     "min_model_frames": 3,  # a model of fewer registered frames is no calibration
     "threads": -1,  # COLMAP's threads (-1: all cores)
     # overrides of COLMAP's IncrementalPipelineOptions: the global adjustments while frames are added
@@ -350,9 +359,11 @@ def match_frames(
         pycolmap.apply_rig_config([_rig_config(pycolmap, R, T)], db)
     matching = pycolmap.FeatureMatchingOptions(num_threads=conf["threads"])
     loops = conf["loop_detection"]
+    frames = len(os.listdir(workspace / "images" / SENSORS[0]))
+    detect = loops["enabled"] and frames >= loops["min_frames"]
     pairing = pycolmap.SequentialPairingOptions(
-        overlap=conf["overlap"], quadratic_overlap=conf["quadratic_overlap"], loop_detection=loops["enabled"],
-        **(_loop_options(database, workspace, loops, conf["threads"]) if loops["enabled"] else {}),
+        overlap=conf["overlap"], quadratic_overlap=conf["quadratic_overlap"], loop_detection=detect,
+        **(_loop_options(database, workspace, loops, conf["threads"]) if detect else {}),
     )  # fmt: skip
     _cancellable(
         pycolmap.match_sequential, database, matching_options=matching, pairing_options=pairing,
