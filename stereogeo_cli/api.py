@@ -51,19 +51,32 @@ def calibrate(
 
     Raises :class:`StereoGeoError` for bad input (its ``exit_code`` is the CLI's).
     """
-    from stereogeo_cli.io import load_image
-    from stereogeo_cli.io.exif import exif_focals
-
     options = PairOptions(
         baseline, focal_left, focal_right, focal_sigma, pinhole=pinhole, lines=lines, exif=exif, rotate=rotate
     ).checked(API_NAMES)
+    return calibrate_with(left, right, options, model=model, threads=threads, calibrator=calibrator)
+
+
+def calibrate_with(
+    left: ImageInput,
+    right: ImageInput,
+    options: PairOptions,
+    *,
+    model: str | os.PathLike | None = None,
+    threads: int = 0,
+    calibrator: Calibrator | None = None,
+) -> CalibrationResult:
+    """:func:`calibrate` with its options already made and checked (``stereogeo calibrate``'s way in)."""
+    from stereogeo_cli.io import load_image
+    from stereogeo_cli.io.exif import exif_focals
+
     images = [image if isinstance(image, np.ndarray) else load_image(image) for image in (left, right)]
     paths = [None if isinstance(image, np.ndarray) else Path(image) for image in (left, right)]
     if calibrator is None:
         # the pair's image work starts while the network's session opens
-        first = None if rotate else (images[0], images[1])  # the turned pair's work starts in calibrate
+        first = None if options.rotate else (images[0], images[1])  # a turned pair's starts in calibrate
         calibrator = Calibrator(model, threads=threads, conf=options.calibrator_conf(), first_pair=first)
-    elif focal_sigma is not None:
+    elif options.focal_sigma is not None:
         raise StereoGeoError("give focal_sigma in the calibrator's conf (known_focal_sigma) when reusing one")
     found = None
     if options.exif and None not in paths:

@@ -559,10 +559,10 @@ def calibrate(
         _check_output_folder(output)
     if preview is not None:
         _check_output_folder(preview.parent)
-    from stereogeo_cli.api import calibrate as calibrate_pair
+    from stereogeo_cli.api import calibrate_with
     from stereogeo_cli.io import load_image, write_calibration
 
-    result = calibrate_pair(left, right, **options.api_keywords(), model=model, threads=threads)
+    result = calibrate_with(left, right, options, model=model, threads=threads)
     report_wanted = output is not None and "html" in names
     images = (load_image(left), load_image(right)) if preview is not None or report_wanted else None
     written = []

@@ -73,12 +73,6 @@ class PairOptions:
         """The same options with the focal lengths given (``batch-calibrate --same-rig``'s second pass)."""
         return replace(self, focal_left=left, focal_right=right)
 
-    def api_keywords(self) -> dict:
-        """These options as :func:`stereogeo_cli.api.calibrate`'s keyword arguments."""
-        return {"baseline": self.baseline_m, "focal_left": self.focal_left, "focal_right": self.focal_right,
-                "focal_sigma": self.focal_sigma, "pinhole": self.pinhole, "lines": self.lines,
-                "exif": self.exif, "rotate": self.rotate}  # fmt: skip
-
     def calibrator_conf(self) -> dict:
         """The :class:`~stereogeo_cli.pipeline.Calibrator` settings these options ask for."""
         conf = calibrator_conf(self.pinhole, self.lines)

@@ -359,8 +359,7 @@ def match_frames(
         pycolmap.apply_rig_config([_rig_config(pycolmap, R, T)], db)
     matching = pycolmap.FeatureMatchingOptions(num_threads=conf["threads"])
     loops = conf["loop_detection"]
-    frames = len(os.listdir(workspace / "images" / SENSORS[0]))
-    detect = loops["enabled"] and frames >= loops["min_frames"]
+    detect = loops["enabled"] and _frame_count(workspace) >= loops["min_frames"]
     pairing = pycolmap.SequentialPairingOptions(
         overlap=conf["overlap"], quadratic_overlap=conf["quadratic_overlap"], loop_detection=detect,
         **(_loop_options(database, workspace, loops, conf["threads"]) if detect else {}),
@@ -370,6 +369,11 @@ def match_frames(
         device=pycolmap.Device.cpu, stop=stop,
     )  # fmt: skip
     return database
+
+
+def _frame_count(workspace: Path) -> int:
+    """How many frames the workspace holds (its left camera's images)."""
+    return len(os.listdir(workspace / "images" / SENSORS[0]))
 
 
 def _loop_options(database: Path, workspace: Path, loops: dict, threads: int) -> dict:
@@ -901,8 +905,7 @@ def reconstruct(
         stage("COLMAP: mapping")
         models = map_frames(workspace, database, radial, conf, stop)
         if models and hasattr(progress, "note"):  # the frames registered, on the stage's line
-            frames = len(os.listdir(workspace / "images" / SENSORS[0]))
-            progress.note(f"{models[0].num_reg_frames()} of {frames} frames registered")
+            progress.note(f"{models[0].num_reg_frames()} of {_frame_count(workspace)} frames registered")
         if not models or models[0].num_reg_frames() < conf["min_model_frames"]:
             raise CalibrationFailed(
                 "COLMAP could not reconstruct the sequence (too few frames share enough features): "

@@ -37,7 +37,7 @@ from stereogeo_cli.fuse.assemble import (
     focal_sigmas,
     measured_pose_report,
 )
-from stereogeo_cli.geometry import rotation_angle
+from stereogeo_cli.geometry import gravity_angle, rotation_angle
 from stereogeo_cli.io import StereoCalibration
 from stereogeo_cli.io.text import plural
 from stereogeo_cli.pipeline import with_rotation_noted
@@ -324,8 +324,7 @@ def _covering_the_pairs(rig_sigmas: tuple[float, float], model, R0: np.ndarray, 
     pairs' (``R0``, ``T0``): the adjustment of part of the frames only can be sharp and wrong there, as
     its focal length can (``partial_registration_share``)."""
     turn = math.degrees(rotation_angle(model.R @ R0.T))
-    cos = float(model.T @ T0) / float(np.linalg.norm(model.T) * np.linalg.norm(T0))
-    direction = math.degrees(math.acos(min(max(cos, -1.0), 1.0)))
+    direction = math.degrees(float(gravity_angle(model.T, T0)))  # the angle between two directions
     return max(rig_sigmas[0], turn), max(rig_sigmas[1], direction)
 
 
